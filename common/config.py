@@ -1,0 +1,126 @@
+"""Configuration: TOML for viena's settings, JSON5 for zenoh's.
+
+A viena TOML file holds one table per service, with one sub-table per unit:
+
+    car = "elettra"
+    [zenoh]
+    connect = ["tcp/192.168.1.10:7447"]     # or: config = "compose/zenoh/client.json5"
+    [gnss.gnss0]
+    port = "/dev/ttyUSB0"
+
+Text values may name environment variables as `${NAME}` or `${NAME:-default}`, so one
+profile serves every machine (compose profiles use this for ports and addresses).
+Every mistake is a ConfigError whose one line names the file and the setting.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import json5
+
+from viena.common.errors import ConfigError
+
+MULTICAST_OFF = "scouting/multicast/enabled"
+
+
+_VAR = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)(?::-([^}]*))?\}")
+
+
+def expand_env(value: Any, source: str = "config") -> Any:
+    """Replace ${NAME} and ${NAME:-default} in every text value, recursively."""
+    if isinstance(value, dict):
+        return {k: expand_env(v, f"{source}.{k}") for k, v in value.items()}
+    if isinstance(value, list):
+        return [expand_env(v, source) for v in value]
+    if not isinstance(value, str) or "${" not in value:
+        return value
+
+    def one(m: re.Match) -> str:
+        name, default = m.group(1), m.group(2)
+        if name in os.environ:
+            return os.environ[name]
+        if default is None:
+            raise ConfigError(f"{source}: environment variable {name} is not set")
+        return default
+    return _VAR.sub(one, value)
+
+
+def load_toml(path: str | Path) -> dict:
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            return expand_env(tomllib.load(f), str(path))
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: {exc.strerror}") from None
+
+
+def merge_settings(defaults: dict, given: dict, source: str) -> dict:
+    """Defaults overlaid with `given`; unknown names and wrong types are errors."""
+    out = dict(defaults)
+    for name, value in given.items():
+        if name not in defaults:
+            known = ", ".join(sorted(defaults)) or "none"
+            raise ConfigError(f"{source}: unknown setting '{name}' (known: {known})")
+        out[name] = check_type(name, value, defaults[name], source)
+    return out
+
+
+def check_type(name: str, value: Any, default: Any, source: str) -> Any:
+    if default is None or value is None:
+        return value
+    want = type(default)
+    if want is float and type(value) is int:
+        return float(value)
+    if want is list and isinstance(value, (list, tuple)):
+        return list(value)
+    if want in (int, float) and isinstance(value, str):      # from ${VAR} expansion
+        try:
+            return want(value)
+        except ValueError:
+            pass
+    if type(value) is not want:
+        raise ConfigError(f"{source}: setting '{name}' must be {want.__name__}, got {value!r}")
+    return value
+
+
+def load_zenoh_config(path: str | Path | None = None, *, mode: str | None = None,
+                      connect: list[str] | None = None, listen: list[str] | None = None):
+    """A zenoh.Config from a JSON5 file (or defaults), with overrides, multicast off."""
+    import zenoh
+
+    if path is not None:
+        path = Path(path)
+        try:
+            text = path.read_text()
+            json5.loads(text)                   # zenoh's own message lacks file and line
+        except FileNotFoundError:
+            raise ConfigError(f"{path}: no such file") from None
+        except ValueError as exc:
+            raise ConfigError(f"{path}: {exc}") from None
+        try:
+            conf = zenoh.Config.from_json5(text)
+        except Exception as exc:
+            raise ConfigError(f"{path}: {exc}") from None
+    else:
+        conf = zenoh.Config()
+    try:
+        if mode:
+            conf.insert_json5("mode", json.dumps(mode))
+        if connect:
+            conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        if listen:
+            conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        # design §7: no multicast anywhere, whatever a file says
+        conf.insert_json5(MULTICAST_OFF, "false")
+    except Exception as exc:
+        raise ConfigError(f"{path or 'zenoh config'}: {exc}") from None
+    return conf

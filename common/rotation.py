@@ -1,0 +1,69 @@
+"""Rotations as the whole project writes them (design §5, seed eq. 5.3/5.4).
+
+Euler angles are Tait-Bryan intrinsic Z-Y-X (yaw psi, pitch theta, roll phi):
+R = Rz(psi) Ry(theta) Rx(phi) rotates body vectors into the world (ENU).
+Quaternions are Hamilton, scalar first, [q1 q2 q3 q4] = [w x y z], same meaning as R.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def quat_to_matrix(q) -> np.ndarray:
+    w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def quat_from_euler(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    return np.array([
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    ])
+
+
+def euler_from_quat(q) -> tuple[float, float, float]:
+    """(yaw, pitch, roll) in rad; pitch is clipped to +-90 deg at the singularity."""
+    w, x, y, z = np.asarray(q, float) / np.linalg.norm(q)
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    return yaw, pitch, roll
+
+
+def euler_to_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """Seed eq. 5.4: R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cr, sr = math.cos(roll), math.sin(roll)
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    return rz @ ry @ rx
+
+
+def quat_multiply(a, b) -> np.ndarray:
+    """Hamilton product a * b."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array([
+        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+    ])
+
+
+def wrap_angle(a: float) -> float:
+    """Wrap to [-pi, pi)."""
+    return (a + math.pi) % (2 * math.pi) - math.pi

@@ -1,0 +1,218 @@
+"""Sample schemas and their msgpack codec (design §4).
+
+A `Schema` names a sample type (`viena.sim.truth/1`) and lists its fields. `encode` checks
+a sample before it goes out, so a bad value is never published; `decode` checks what comes
+in and turns anything malformed into a `SampleError` that says which field is wrong.
+Every schema lives in the one module that owns it; `SCHEMAS` finds them by name.
+
+    >>> FIX = Schema("viena.example/1", {"t": F.time, "seq": F.int, "x_m": F.float})
+    >>> FIX.decode(FIX.encode({"t": 1, "seq": 0, "x_m": 2.5}))
+    {'t': 1, 'seq': 0, 'x_m': 2.5}
+"""
+from __future__ import annotations
+
+import math
+from typing import Any, Callable
+
+import msgpack
+
+from viena.common.errors import SampleError
+
+MSGPACK = "application/msgpack"
+#: Bounds on what we unpack: a sample is small; a hostile payload must not eat memory.
+_MAX_BYTES = 1 << 20
+SCHEMAS: dict[str, "Schema"] = {}
+
+Check = Callable[[Any], Any]
+
+
+class Invalid(Exception):
+    """Raised by a field check; the schema adds where it happened."""
+
+    def __init__(self, what: str, value: Any):
+        shown = repr(value)
+        if len(shown) > 60:
+            shown = shown[:57] + "..."
+        super().__init__(f"{what}, got {shown}")
+
+
+def _finite_float(v) -> float:
+    if type(v) is float:
+        if v - v == 0.0:                      # fast finite test: inf-inf and nan-nan are nan
+            return v
+    elif type(v) is int:
+        return float(v)
+    elif isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+        return float(v)
+    raise Invalid("expected a finite number", v)
+
+
+class F:
+    """Field checks. Each takes a value and returns the value to keep, or raises Invalid."""
+
+    float = staticmethod(_finite_float)
+
+    @staticmethod
+    def int(v):
+        if type(v) is int:
+            return v
+        raise Invalid("expected an integer", v)
+
+    @staticmethod
+    def time(v):
+        """Absolute time, int ns UTC (between 1980 and 2200)."""
+        if type(v) is int and 315_964_800_000_000_000 <= v <= 7_258_118_400_000_000_000:
+            return v
+        raise Invalid("expected a time in int ns UTC", v)
+
+    @staticmethod
+    def str(v):
+        if type(v) is str:
+            return v
+        raise Invalid("expected text", v)
+
+    @staticmethod
+    def bool(v):
+        if type(v) is bool:
+            return v
+        raise Invalid("expected true or false", v)
+
+    @staticmethod
+    def any(v):
+        return v
+
+    @staticmethod
+    def map(v):
+        if isinstance(v, dict) and all(type(k) is str for k in v):
+            return v
+        raise Invalid("expected a map with text keys", v)
+
+    @staticmethod
+    def vec(n: int) -> Check:
+        """A list of exactly n finite numbers."""
+        def check(v):
+            if type(v) is list and len(v) == n:
+                for x in v:                       # fast path: already finite floats
+                    if type(x) is not float or x - x != 0.0:
+                        break
+                else:
+                    return v
+            if isinstance(v, (list, tuple)) and len(v) == n:
+                return [_finite_float(x) for x in v]
+            raise Invalid(f"expected a list of {n} finite numbers", v)
+        return check
+
+    @staticmethod
+    def list(item: Check) -> Check:
+        def check(v):
+            if isinstance(v, (list, tuple)):
+                return [item(x) for x in v]
+            raise Invalid("expected a list", v)
+        return check
+
+    @staticmethod
+    def enum(*names: str) -> Check:
+        allowed = frozenset(names)
+
+        def check(v):
+            if v in allowed:
+                return v
+            raise Invalid(f"expected one of {sorted(allowed)}", v)
+        return check
+
+    @staticmethod
+    def optional(inner: Check) -> Check:
+        """May be missing or nil."""
+        def check(v):
+            return None if v is None else inner(v)
+        check.optional = True
+        return check
+
+    @staticmethod
+    def struct(fields: dict[str, Check]) -> Check:
+        """A nested map with its own fields."""
+        inner = _Fields(fields)
+
+        def check(v):
+            return inner.check(v, "", strict=False)
+        return check
+
+
+class _Fields:
+    def __init__(self, fields: dict[str, Check]):
+        self.fields = dict(fields)
+        self._items = list(self.fields.items())
+        self._keys = frozenset(self.fields)
+        self._required = [k for k, c in fields.items() if not getattr(c, "optional", False)]
+
+    def check(self, sample: Any, where: str, strict: bool) -> dict:
+        """Checks in place (a fresh dict from msgpack, or the caller's own for encode)."""
+        if type(sample) is not dict:
+            raise SampleError(f"{where}: {Invalid('expected a map', sample)}")
+        if strict and not sample.keys() <= self._keys:
+            extra = sorted(set(sample) - self._keys, key=str)[0]
+            raise SampleError(f"{where}: unknown field {extra!r}")
+        k = None
+        try:
+            for k, c in self._items:
+                v = sample.get(k, _MISSING)
+                if v is _MISSING:
+                    if getattr(c, "optional", False):
+                        continue
+                    raise SampleError(f"{where}: missing field '{k}'")
+                r = c(v)
+                if r is not v:
+                    sample[k] = r
+        except Invalid as exc:
+            raise SampleError(f"{where}.{k}: {exc}") from None
+        except SampleError as exc:               # from a nested struct, or missing
+            if str(exc).startswith(f"{where}:"):
+                raise
+            raise SampleError(f"{where}.{k}{exc}") from None
+        return sample
+
+
+_MISSING = object()
+
+
+class Schema:
+    """A named, versioned sample type with checked msgpack encode/decode."""
+
+    def __init__(self, name: str, fields: dict[str, Check]):
+        self.name = name
+        self._fields = _Fields(fields)
+        self.fields = self._fields.fields
+        self.encoding = f"{MSGPACK};{name}"
+        SCHEMAS[name] = self
+
+    def validate(self, sample: Any, strict: bool = True) -> dict:
+        return self._fields.check(sample, self.name, strict)
+
+    def encode(self, sample: dict) -> bytes:
+        """Check and pack; raises SampleError rather than publish a bad value."""
+        return msgpack.packb(self._fields.check(sample, self.name, True), use_bin_type=True)
+
+    def decode(self, payload: bytes | bytearray | memoryview) -> dict:
+        """Unpack and check; unknown fields from newer producers are kept."""
+        return self._fields.check(unpack(payload, self.name), self.name, False)
+
+    def __repr__(self) -> str:
+        return f"Schema({self.name!r})"
+
+
+def unpack(payload: bytes | bytearray | memoryview, what: str = "payload") -> Any:
+    """msgpack -> Python, with every failure turned into a SampleError."""
+    data = bytes(payload)
+    if len(data) > _MAX_BYTES:
+        raise SampleError(f"{what}: {len(data)} bytes is larger than any sample")
+    try:
+        return msgpack.unpackb(data, raw=False, strict_map_key=True)
+    except Exception as exc:  # msgpack raises many types for garbage: all mean the same here
+        raise SampleError(f"{what}: not valid msgpack ({type(exc).__name__}: {exc})") from None
+
+
+def schema_of(encoding: str | None) -> Schema | None:
+    """The registered schema named by a zenoh encoding like 'application/msgpack;viena.x/1'."""
+    if not encoding or ";" not in encoding:
+        return None
+    return SCHEMAS.get(encoding.split(";", 1)[1])

@@ -1,0 +1,225 @@
+"""The life of every viena process: flags, settings, session, health, and a clean stop.
+
+A service subclasses `Service`, names itself, lists its settings with their defaults, and
+fills in `start()` and `stop()`. Everything else is the same everywhere:
+
+- flags `--connect`, `--car`, `--config`, `--unit`, `--log-level`, `--help`, plus the
+  service's own (each setting can also be given as a flag of the same name);
+- settings from the TOML file's `[<name>]` table and `[<name>.<unit>]` sub-table;
+  a bad file or setting stops the process at start with one line naming both;
+- a liveliness token (discovery only, design §3), a health sample once a second;
+- SIGTERM/SIGINT: stop within 2 s, with every publisher, subscriber, queryable and the
+  session closed (zenoh-python can hang at exit if any are left open).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from typing import Any, Callable
+
+from viena.common.config import merge_settings
+from viena.common.errors import ConfigError, SampleError
+from viena.common.health import HEALTH, Health
+from viena.common.keys import Keys
+from viena.common.log import setup_logging
+from viena.common.schema import Schema
+from viena.common.session import (add_common_arguments, car_name, load_settings_file,
+                                  open_session, zenoh_config)
+
+STOP_DEADLINE_S = 2.0
+HEALTH_PERIOD_S = 1.0
+
+
+class Publisher:
+    """Publishes samples of one schema on one key; a sample that fails its check is
+    logged and counted, never sent."""
+
+    def __init__(self, service: "Service", key: str, schema: Schema, **options):
+        import zenoh
+
+        self.key, self.schema = key, schema
+        self._service = service
+        self._pub = service.session.declare_publisher(
+            key, encoding=zenoh.Encoding(schema.encoding), **options)
+
+    def put(self, sample: dict) -> bool:
+        try:
+            payload = self.schema.encode(sample)
+        except SampleError as exc:
+            self._service.health.error("bad_sample")
+            self._service.log.error("not published on %s: %s", self.key, exc)
+            return False
+        self._pub.put(payload)
+        return True
+
+    def undeclare(self) -> None:
+        self._pub.undeclare()
+
+
+class Service:
+    """Base class of every viena process. See the module docstring."""
+
+    #: the name in keys and in the TOML file: viena/<car>/<name>/...
+    name = "service"
+    #: settings with their defaults; the type of each default is the setting's type
+    settings_defaults: dict[str, Any] = {}
+    #: units are optional (the router and the estimator have none)
+    default_unit: str | None = None
+    description = ""
+
+    def __init__(self, args: argparse.Namespace):
+        self.args = args
+        self.log = logging.getLogger(f"viena.{self.name}")
+        toml = load_settings_file(args)
+        self.toml = toml
+        self.unit = getattr(args, "unit", None) or self.default_unit
+        self.keys = Keys(car_name(args, toml))
+        self.settings = self._settings(toml, args)
+        self.zenoh_config = zenoh_config(args, toml)
+        self.health = Health(self.name, self.unit)
+        self.stopping = threading.Event()
+        self.session = None
+        self._declared: list = []
+        self._token = None
+
+    # -- for subclasses --------------------------------------------------------------------
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        """Add the service's own flags; a flag whose dest is a setting name overrides it."""
+
+    def start(self) -> None:
+        """Open the device, declare publishers and queryables, start threads."""
+
+    def stop(self) -> None:
+        """Stop threads and close the device. Must return well within 2 s."""
+
+    def publisher(self, key: str, schema: Schema, **options) -> Publisher:
+        pub = Publisher(self, key, schema, **options)
+        self._declared.append(pub)
+        return pub
+
+    def declare_subscriber(self, key: str, callback: Callable, **options):
+        sub = self.session.declare_subscriber(key, callback, **options)
+        self._declared.append(sub)
+        return sub
+
+    def declare_queryable(self, key: str, callback: Callable, **options):
+        q = self.session.declare_queryable(key, callback, **options)
+        self._declared.append(q)
+        return q
+
+    # -- the life ----------------------------------------------------------------------------
+    def run(self) -> int:
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, self._on_signal)
+        self.session = open_session(self.zenoh_config, self.stopping)
+        if self.session is None:
+            return 0
+        self.log.info("started: car %s, unit %s, zenoh id %s", self.keys.car, self.unit,
+                      self.session.zid())
+        try:
+            self._token = self.session.liveliness().declare_token(self.keys.alive(self.name, self.unit))
+            health_pub = self.publisher(self.keys.health(self.name, self.unit), HEALTH)
+            self.start()
+            while not self.stopping.wait(HEALTH_PERIOD_S):
+                health_pub.put(self.health.snapshot())
+        finally:
+            self._shutdown()
+        return 0
+
+    def _on_signal(self, signum, _frame) -> None:
+        if self.stopping.is_set():
+            return
+        self.log.info("%s: stopping", signal.Signals(signum).name)
+        self.stopping.set()
+        # The deadline is a promise to supervisor and to the person at Ctrl-C: keep it even
+        # if a device or the zenoh runtime hangs while closing.
+        timer = threading.Timer(STOP_DEADLINE_S - 0.2, self._force_exit)
+        timer.daemon = True
+        timer.start()
+
+    def _force_exit(self) -> None:
+        self.log.warning("stop took longer than %.1f s: exiting anyway", STOP_DEADLINE_S)
+        logging.shutdown()
+        os._exit(0)
+
+    def _shutdown(self) -> None:
+        self.stopping.set()
+        try:
+            self.stop()
+        except Exception:
+            self.log.exception("error while stopping")
+        for entity in reversed(self._declared):
+            try:
+                entity.undeclare()
+            except Exception as exc:
+                self.log.debug("undeclare failed: %s", exc)
+        self._declared.clear()
+        if self._token is not None:
+            try:
+                self._token.undeclare()
+            except Exception:
+                pass
+        if self.session is not None:
+            self.session.close()
+        self.log.info("stopped")
+
+    # -- settings ------------------------------------------------------------------------------
+    def _settings(self, toml: dict, args: argparse.Namespace) -> dict:
+        source = str(getattr(args, "config", None))
+        table = toml.get(self.name, {})
+        if not isinstance(table, dict):
+            raise ConfigError(f"{source}: [{self.name}] must be a table")
+        units = {k: v for k, v in table.items() if isinstance(v, dict) and k not in self.settings_defaults}
+        own = {k: v for k, v in table.items() if k not in units}
+        settings = merge_settings(self.settings_defaults, own, f"{source} [{self.name}]")
+        if self.unit and self.unit in units:
+            settings = merge_settings(settings, units[self.unit], f"{source} [{self.name}.{self.unit}]")
+        for name in self.settings_defaults:
+            value = getattr(args, name, None)
+            if value is not None:
+                settings[name] = value
+        return settings
+
+
+def build_parser(cls: type[Service]) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=f"viena-{cls.name}", description=cls.description or (cls.__doc__ or "").strip(),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_common_arguments(parser)
+    parser.add_argument("--unit", metavar="NAME", default=None,
+                        help=f"which unit this process runs (default {cls.default_unit}); "
+                             f"its settings come from the [{cls.name}.NAME] table")
+    cls.add_arguments(parser)
+    return parser
+
+
+def run_service(cls: type[Service], argv: list[str] | None = None) -> int:
+    """Console-script entry point: parse, configure, run; input errors are one line."""
+    args = build_parser(cls).parse_args(argv)
+    setup_logging(args.log_level)
+    try:
+        service = cls(args)
+    except ConfigError as exc:
+        print(f"viena-{cls.name}: config error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return service.run()
+    except ConfigError as exc:
+        logging.getLogger(f"viena.{cls.name}").error("config error: %s", exc)
+        return 2
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float, period: float = 0.01) -> bool:
+    """Poll `predicate` until true or `timeout` s pass; for tests and start-up waits."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(period)
+    return bool(predicate())

@@ -1,0 +1,143 @@
+"""The simulated car: a kinematic bicycle model (seed fig. 6.2) that drives a default route.
+
+The car is the hardware of the simulation: every device twin reads its truth. The wheel
+angle comes from the built-in route follower (pure pursuit around a loop at the campus),
+or, once the steering drive's twin is attached, from the drive itself.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from viena.common.rotation import quat_from_euler
+from viena.services.sim.route import Route, default_route
+from viena.services.sim.truth import IST_ORIGIN, Truth, normal_gravity
+
+
+@dataclass
+class CarParams:
+    wheelbase_m: float = 2.2
+    max_wheel_angle_rad: float = math.radians(29.0)
+    max_wheel_rate_radps: float = math.radians(30.0)
+    lookahead_m: float = 6.0
+    parked_s: float = 10.0          # standing still first, as a car does while its IMU aligns
+    speed_min_mps: float = 3.0
+    speed_max_mps: float = 5.0
+    speed_period_s: float = 40.0
+    max_accel_mps2: float = 1.0
+
+
+class SimCar:
+    """Bicycle model state, stepped at a fixed rate; thread-safe `truth()`.
+
+    Integration is exact for constant speed and wheel angle over one step (arc motion),
+    so accelerations and rates in the truth are consistent with the positions.
+    """
+
+    def __init__(self, params: CarParams | None = None, route: Route | None = None,
+                 origin=IST_ORIGIN, start_time_ns: int | None = None):
+        self.params = params or CarParams()
+        self.route = route or default_route()
+        self.origin = tuple(origin)
+        self.gravity = normal_gravity(origin[0], origin[2])
+        self._t0_ns = time.time_ns() if start_time_ns is None else int(start_time_ns)
+        x, y, yaw = self.route.start_pose()
+        self._x, self._y, self._yaw = x, y, yaw
+        self._v = 0.0
+        self._delta = 0.0
+        self._t = 0.0
+        self._seq = 0
+        self._wheel_source: Callable[[], float] | None = None
+        self._lock = threading.Lock()
+        self._truth = self._make_truth(0.0, 0.0, 0.0)
+
+    # -- inputs -------------------------------------------------------------------------
+    def set_wheel_source(self, fn: Callable[[], float] | None) -> None:
+        """Let a steering twin drive the wheel angle (rad, positive left)."""
+        self._wheel_source = fn
+
+    # -- stepping -----------------------------------------------------------------------
+    def step(self, dt: float) -> Truth:
+        p = self.params
+        v_cmd = self._speed_command(self._t)
+        dv = max(-p.max_accel_mps2 * dt, min(p.max_accel_mps2 * dt, v_cmd - self._v))
+        v_new = self._v + dv
+        if self._wheel_source is not None:
+            delta_new = float(self._wheel_source())
+        else:
+            target = self._pursuit_angle()
+            step = p.max_wheel_rate_radps * dt
+            delta_new = self._delta + max(-step, min(step, target - self._delta))
+        delta_new = max(-p.max_wheel_angle_rad, min(p.max_wheel_angle_rad, delta_new))
+
+        v_mid = 0.5 * (self._v + v_new)
+        yaw_rate = v_mid * math.tan(0.5 * (self._delta + delta_new)) / p.wheelbase_m
+        yaw_new = self._yaw + yaw_rate * dt
+        # forward = Rz(yaw) [0, 1, 0] = [-sin yaw, cos yaw]: arc integration
+        if abs(yaw_rate) > 1e-9:
+            r = v_mid / yaw_rate
+            self._x += r * (math.cos(yaw_new) - math.cos(self._yaw))
+            self._y += r * (math.sin(yaw_new) - math.sin(self._yaw))
+        else:
+            self._x += -v_mid * dt * math.sin(self._yaw)
+            self._y += v_mid * dt * math.cos(self._yaw)
+        self._yaw = yaw_new
+        self._v, self._delta = v_new, delta_new
+        self._t += dt
+        along = dv / dt if dt > 0 else 0.0
+        truth = self._make_truth(along, yaw_rate, v_new * yaw_rate)
+        with self._lock:
+            self._truth = truth
+        return truth
+
+    def truth(self) -> Truth:
+        with self._lock:
+            return self._truth
+
+    # -- internals ----------------------------------------------------------------------
+    def _speed_command(self, t: float) -> float:
+        p = self.params
+        if t < p.parked_s:
+            return 0.0
+        mid = 0.5 * (p.speed_min_mps + p.speed_max_mps)
+        amp = 0.5 * (p.speed_max_mps - p.speed_min_mps)
+        return mid + amp * math.sin(2 * math.pi * (t - p.parked_s) / p.speed_period_s)
+
+    def _pursuit_angle(self) -> float:
+        """Pure pursuit: aim at the route point one look-ahead distance ahead."""
+        p = self.params
+        gx, gy = self.route.lookahead(self._x, self._y, p.lookahead_m)
+        dx, dy = gx - self._x, gy - self._y
+        # target in body axes: x right, y forward
+        c, s = math.cos(self._yaw), math.sin(self._yaw)
+        bx, by = c * dx + s * dy, -s * dx + c * dy
+        ld2 = bx * bx + by * by
+        if ld2 < 1e-6:
+            return 0.0
+        curvature = -2.0 * bx / ld2          # target to the left (bx < 0) -> turn left
+        return math.atan(curvature * p.wheelbase_m)
+
+    def _make_truth(self, along_mps2: float, yaw_rate: float, lateral_mps2: float) -> Truth:
+        c, s = math.cos(self._yaw), math.sin(self._yaw)
+        fwd = np.array([-s, c, 0.0])
+        left = np.array([-c, -s, 0.0])
+        self._seq += 1
+        return Truth(
+            t_ns=self._t0_ns + int(round(self._t * 1e9)),
+            t_s=self._t,
+            origin=self.origin,
+            enu_m=np.array([self._x, self._y, 0.0]),
+            vel_enu_mps=self._v * fwd,
+            accel_enu_mps2=along_mps2 * fwd + lateral_mps2 * left,
+            quat=quat_from_euler(self._yaw, 0.0, 0.0),
+            gyro_body_radps=np.array([0.0, 0.0, yaw_rate]),
+            speed_mps=self._v,
+            wheel_angle_rad=self._delta,
+            gravity_mps2=self.gravity,
+            seq=self._seq,
+        )

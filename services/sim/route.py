@@ -1,0 +1,63 @@
+"""The loop the simulated car drives: a closed polyline in local ENU metres."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+class Route:
+    """A closed path with a look-ahead query for pure pursuit."""
+
+    def __init__(self, points_enu: np.ndarray):
+        self.points = np.asarray(points_enu, float)
+        seg = np.diff(np.vstack([self.points, self.points[:1]]), axis=0)
+        self._seglen = np.hypot(seg[:, 0], seg[:, 1])
+        self._s = np.concatenate([[0.0], np.cumsum(self._seglen)])
+        self.length_m = float(self._s[-1])
+        self._last = 0
+
+    def start_pose(self) -> tuple[float, float, float]:
+        """First point and the yaw (ENU, CCW, 0 = North) along the first segment."""
+        (x0, y0), (x1, y1) = self.points[0], self.points[1]
+        return float(x0), float(y0), math.atan2(-(x1 - x0), y1 - y0)
+
+    def point_at(self, s: float) -> tuple[float, float]:
+        s = s % self.length_m
+        i = int(np.searchsorted(self._s, s, side="right") - 1)
+        i = min(i, len(self.points) - 1)
+        frac = (s - self._s[i]) / self._seglen[i]
+        a = self.points[i]
+        b = self.points[(i + 1) % len(self.points)]
+        return float(a[0] + frac * (b[0] - a[0])), float(a[1] + frac * (b[1] - a[1]))
+
+    def lookahead(self, x: float, y: float, distance_m: float) -> tuple[float, float]:
+        """The route point `distance_m` beyond the closest point near the last one found."""
+        n = len(self.points)
+        window = [(self._last + k) % n for k in range(-2, 12)]
+        d = [(self.points[i, 0] - x) ** 2 + (self.points[i, 1] - y) ** 2 for i in window]
+        self._last = window[int(np.argmin(d))]
+        return self.point_at(self._s[self._last] + distance_m)
+
+
+def oval(straight_m: float = 40.0, radius_m: float = 12.0, step_m: float = 1.0) -> Route:
+    """Two straights joined by half circles, counter-clockwise, starting heading North."""
+    pts = []
+    n_straight = int(straight_m / step_m)
+    n_arc = int(math.pi * radius_m / step_m)
+    for k in range(n_straight):                       # east side, northbound
+        pts.append((radius_m, k * step_m))
+    for k in range(n_arc):                            # north half circle, turning left
+        a = math.pi * k / n_arc
+        pts.append((radius_m * math.cos(a), straight_m + radius_m * math.sin(a)))
+    for k in range(n_straight):                       # west side, southbound
+        pts.append((-radius_m, straight_m - k * step_m))
+    for k in range(n_arc):                            # south half circle
+        a = math.pi + math.pi * k / n_arc
+        pts.append((radius_m * math.cos(a), radius_m * math.sin(a)))
+    return Route(np.array(pts))
+
+
+def default_route() -> Route:
+    """A 40 m x 24 m loop on the IST campus, about 155 m around."""
+    return oval()

@@ -1,0 +1,137 @@
+"""Ground truth of the simulated car: the one picture every device twin turns into bytes.
+
+Conventions (design §5): world is local ENU (x East, y North, z Up) at a geodetic origin;
+body is x right, y forward, z up, so at yaw 0 the car points North; yaw is positive
+counter-clockwise seen from above (a left turn), compass heading = -yaw.
+Quaternions are Hamilton, scalar first, rotating body vectors into ENU.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pymap3d
+
+from viena.common.rotation import euler_from_quat, quat_to_matrix
+from viena.common.schema import F, Schema
+
+#: Lisbon geomagnetic field, Jan 2017 (design §5), nT in ENU.
+LISBON_MAG_ENU_NT = np.array([-1121.5, 26479.8, -34884.7])
+LISBON_DECLINATION_DEG = 2.48
+LISBON_INCLINATION_DEG = 52.77
+#: IST campus, Lisbon: the simulated car's default ENU origin.
+IST_ORIGIN = (38.7369, -9.1395, 100.0)
+
+
+def normal_gravity(lat_deg: float, height_m: float = 0.0) -> float:
+    """WGS84 normal gravity (Somigliana) with the free-air height term, m/s^2."""
+    s2 = np.sin(np.radians(lat_deg)) ** 2
+    g0 = 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - 0.00669437999013 * s2)
+    return float(g0 - 3.086e-6 * height_m)
+
+
+@dataclass(frozen=True)
+class Truth:
+    """The car's true state at one instant."""
+
+    t_ns: int                      # absolute time, ns UTC
+    t_s: float                     # simulation time since start, s
+    origin: tuple                  # (lat_deg, lon_deg, height_m) of the ENU origin
+    enu_m: np.ndarray              # position of the body origin (rear axle centre), ENU
+    vel_enu_mps: np.ndarray
+    accel_enu_mps2: np.ndarray
+    quat: np.ndarray               # body -> ENU, [w, x, y, z]
+    gyro_body_radps: np.ndarray    # angular rate of body w.r.t. ENU, in body axes
+    speed_mps: float
+    wheel_angle_rad: float         # bicycle-model front wheel angle, positive = left
+    gravity_mps2: float = 9.80665
+    seq: int = 0
+    _rot: np.ndarray = field(default=None, repr=False, compare=False)
+
+    @property
+    def rot(self) -> np.ndarray:
+        """Rotation matrix body -> ENU."""
+        if self._rot is None:
+            object.__setattr__(self, "_rot", quat_to_matrix(self.quat))
+        return self._rot
+
+    @property
+    def specific_force_body_mps2(self) -> np.ndarray:
+        """What an ideal accelerometer feels: a - g, in body axes (at rest: +g on z)."""
+        f_enu = self.accel_enu_mps2 + np.array([0.0, 0.0, self.gravity_mps2])
+        return self.rot.T @ f_enu
+
+    def enu_of(self, lever_arm_body_m) -> np.ndarray:
+        """ENU position of a point fixed to the body (an antenna, say)."""
+        return self.enu_m + self.rot @ np.asarray(lever_arm_body_m, float)
+
+    def vel_enu_of(self, lever_arm_body_m) -> np.ndarray:
+        """ENU velocity of a point fixed to the body: v + R (w x r)."""
+        r = np.asarray(lever_arm_body_m, float)
+        return self.vel_enu_mps + self.rot @ np.cross(self.gyro_body_radps, r)
+
+    def geodetic_of(self, lever_arm_body_m=(0.0, 0.0, 0.0)) -> tuple[float, float, float]:
+        e, n, u = self.enu_of(lever_arm_body_m)
+        lat, lon, h = pymap3d.enu2geodetic(e, n, u, *self.origin)
+        return float(lat), float(lon), float(h)
+
+    def ecef_of(self, lever_arm_body_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+        e, n, u = self.enu_of(lever_arm_body_m)
+        return np.array(pymap3d.enu2ecef(e, n, u, *self.origin), float)
+
+    def vel_ecef_of(self, lever_arm_body_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+        e, n, u = self.vel_enu_of(lever_arm_body_m)
+        return np.array(pymap3d.enu2uvw(e, n, u, self.origin[0], self.origin[1]), float)
+
+    def mag_body_T(self, field_enu_nT=LISBON_MAG_ENU_NT) -> np.ndarray:
+        """The Earth's magnetic field in body axes, tesla."""
+        return self.rot.T @ (np.asarray(field_enu_nT, float) * 1e-9)
+
+    @property
+    def yaw_rad(self) -> float:
+        return float(np.arctan2(self.rot[1, 0], self.rot[0, 0]))
+
+
+TRUTH = Schema("viena.sim.truth/1", {
+    "t": F.time,
+    "seq": F.int,
+    "t_sim_s": F.float,
+    "origin": F.vec(3),                 # ENU origin: lat_deg, lon_deg, height_m
+    "ecef_m": F.vec(3),
+    "lat_deg": F.float,
+    "lon_deg": F.float,
+    "height_m": F.float,
+    "enu_m": F.vec(3),
+    "vel_enu_mps": F.vec(3),
+    "accel_enu_mps2": F.vec(3),
+    "quat": F.vec(4),                   # body -> ENU, Hamilton [w x y z]
+    "euler_rad": F.vec(3),              # yaw, pitch, roll (Z-Y-X)
+    "gyro_radps": F.vec(3),             # body angular rate
+    "specific_force_mps2": F.vec(3),    # body, what an accelerometer feels
+    "speed_mps": F.float,
+    "wheel_angle_rad": F.float,
+})
+
+
+def truth_sample(truth: Truth) -> dict:
+    """The published form of a Truth (plain lists of floats, float64 ECEF)."""
+    lat, lon, h = truth.geodetic_of()
+    return {
+        "t": truth.t_ns,
+        "seq": truth.seq,
+        "t_sim_s": truth.t_s,
+        "origin": [float(v) for v in truth.origin],
+        "ecef_m": truth.ecef_of().tolist(),
+        "lat_deg": lat,
+        "lon_deg": lon,
+        "height_m": h,
+        "enu_m": truth.enu_m.tolist(),
+        "vel_enu_mps": truth.vel_enu_mps.tolist(),
+        "accel_enu_mps2": truth.accel_enu_mps2.tolist(),
+        "quat": truth.quat.tolist(),
+        "euler_rad": list(euler_from_quat(truth.quat)),
+        "gyro_radps": truth.gyro_body_radps.tolist(),
+        "specific_force_mps2": truth.specific_force_body_mps2.tolist(),
+        "speed_mps": float(truth.speed_mps),
+        "wheel_angle_rad": float(truth.wheel_angle_rad),
+    }

@@ -1,0 +1,111 @@
+"""`viena`: run the car, watch it, and measure it.
+
+    viena up [--profile sim] [-d]     start a profile under supervisor (Ctrl-C stops it)
+    viena status | logs NAME | down   look after a running profile
+    viena sub [KEYEXPR]               print samples, one per line
+    viena router                      a zenoh router (for machines without zenohd)
+    viena bench [NAME ...]            print the benchmark figures
+    viena calibrate imu ...           fit IMU calibrations from recordings
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from viena import compose, router, sub
+
+BENCHES = ["sim", "gnss", "imu", "steering", "estimator"]
+CALIBRATIONS = {"imu": "viena.services.imu.calibration"}
+
+
+def _profile_arg(p: argparse.ArgumentParser, default: str | None = compose.DEFAULT_PROFILE) -> None:
+    p.add_argument("--profile", default=default,
+                   help=f"compose profile: {', '.join(compose.profiles())} (default {default or 'the running one'})")
+
+
+def _running_profile(args) -> str:
+    if args.profile:
+        return args.profile
+    running = compose.running_profiles()
+    if len(running) == 1:
+        return running[0]
+    if not running:
+        return compose.DEFAULT_PROFILE
+    raise compose.ComposeError(f"several profiles are up ({', '.join(running)}): say --profile")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="viena", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    cmds = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = cmds.add_parser("up", help="start a profile under supervisor")
+    _profile_arg(p)
+    p.add_argument("-d", "--detach", action="store_true", help="run in the background")
+    p.add_argument("--free-ports", action="store_true",
+                   help="pick free ports for the profile's VIENA_*_PORT variables")
+    p.set_defaults(func=lambda a: compose.up(a.profile, a.detach, a.free_ports))
+
+    p = cmds.add_parser("down", help="stop a running profile and everything in it")
+    _profile_arg(p, None)
+    p.set_defaults(func=lambda a: compose.down(_running_profile(a)))
+
+    p = cmds.add_parser("status", help="what runs in a profile")
+    _profile_arg(p, None)
+    p.set_defaults(func=lambda a: compose.status(_running_profile(a)))
+
+    p = cmds.add_parser("logs", help="a program's log")
+    p.add_argument("program", help="program name in the profile (router, sim, gnss0, ...)")
+    p.add_argument("-f", "--follow", action="store_true")
+    _profile_arg(p, None)
+    p.set_defaults(func=lambda a: compose.logs(_running_profile(a), a.program, a.follow))
+
+    p = cmds.add_parser("sub", help="print samples of a key expression")
+    sub.build_parser(p)
+    p.set_defaults(func=sub.run)
+
+    p = cmds.add_parser("router", help="run a zenoh router")
+    router.build_parser(p)
+    p.set_defaults(func=router.run)
+
+    p = cmds.add_parser("bench", help="print benchmark figures")
+    p.add_argument("names", nargs="*", metavar="NAME", help=f"any of {', '.join(BENCHES)} (default all)")
+    p.set_defaults(func=_bench)
+
+    p = cmds.add_parser("calibrate", help="fit a device calibration")
+    p.add_argument("device", choices=sorted(CALIBRATIONS))
+    p.add_argument("rest", nargs=argparse.REMAINDER, help="the calibration's own arguments")
+    p.set_defaults(func=lambda a: importlib.import_module(CALIBRATIONS[a.device]).main(a.rest))
+    return parser
+
+
+def _bench(args) -> int:
+    status = 0
+    for name in args.names or BENCHES:
+        if name not in BENCHES:
+            print(f"viena bench: unknown benchmark {name!r} (have {', '.join(BENCHES)})", file=sys.stderr)
+            return 2
+        try:
+            module = importlib.import_module(f"viena.services.{name}.bench")
+        except ModuleNotFoundError:
+            print(f"# {name}: no benchmark yet")
+            continue
+        print(f"## {name}", flush=True)
+        status |= module.main([]) or 0
+    return status
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args) or 0
+    except compose.ComposeError as exc:
+        print(f"viena: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

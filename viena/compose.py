@@ -1,0 +1,175 @@
+"""`viena up/down/status/logs`: a thin wrapper around supervisord and supervisorctl.
+
+A profile is a supervisord file `compose/<profile>.conf` plus the settings its programs
+read (`compose/<profile>.toml`). Profiles use environment variables for what differs
+between runs: VIENA_RUN (the run directory: socket, pid, logs), VIENA_PYTHON, and ports
+named VIENA_*_PORT. `up` fixes them once and writes them to `<run>/env.json`, so the
+later commands (and supervisorctl, which re-reads the same file) see the same values.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from viena.paths import compose_dir
+
+DEFAULT_PROFILE = "sim"
+_PORT_VAR = re.compile(r"(?:%\(ENV_|\$\{)(VIENA_[A-Z0-9_]*PORT)(?:\)s|:-(\d+)\}|\})")
+
+
+class ComposeError(Exception):
+    """Something a person can fix: said in one line."""
+
+
+def profiles() -> list[str]:
+    return sorted(p.stem for p in compose_dir().glob("*.conf"))
+
+
+def profile_file(profile: str) -> Path:
+    path = compose_dir() / f"{profile}.conf"
+    if not path.exists():
+        raise ComposeError(f"no profile '{profile}' (have: {', '.join(profiles())})")
+    return path
+
+
+def state_root() -> Path:
+    base = os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state"
+    return Path(base) / "viena"
+
+
+def run_dir(profile: str) -> Path:
+    return Path(os.environ.get("VIENA_RUN") or state_root() / profile)
+
+
+def port_variables(profile: str) -> dict[str, int | None]:
+    """VIENA_*_PORT names a profile uses, with the defaults its files give."""
+    found: dict[str, int | None] = {}
+    for path in (compose_dir() / f"{profile}.conf", compose_dir() / f"{profile}.toml"):
+        if path.exists():
+            for name, default in _PORT_VAR.findall(path.read_text()):
+                if default or name not in found:
+                    found[name] = int(default) if default else found.get(name)
+    return found
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def environment(profile: str, free_ports: bool = False) -> dict[str, str]:
+    """The variables a profile's files refer to; the caller's environment wins."""
+    env = {
+        "VIENA_RUN": str(run_dir(profile)),
+        "VIENA_PYTHON": sys.executable,
+        "VIENA_PROFILE": profile,
+    }
+    for name, default in port_variables(profile).items():
+        if name in os.environ:
+            env[name] = os.environ[name]
+        elif free_ports or default is None:
+            env[name] = str(free_port())
+        else:
+            env[name] = str(default)
+    return env
+
+
+def saved_environment(profile: str) -> dict[str, str]:
+    path = run_dir(profile) / "env.json"
+    if not path.exists():
+        raise ComposeError(f"profile '{profile}' is not up (no {path})")
+    return json.loads(path.read_text())
+
+
+def _supervisor_env(env: dict[str, str]) -> dict[str, str]:
+    full = dict(os.environ)
+    full.update(env)
+    return full
+
+
+def supervisord_pid(profile: str) -> int | None:
+    pidfile = run_dir(profile) / "supervisord.pid"
+    try:
+        pid = int(pidfile.read_text().strip())
+        os.kill(pid, 0)
+        return pid
+    except (OSError, ValueError):
+        return None
+
+
+def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = False) -> int:
+    conf = profile_file(profile)
+    if supervisord_pid(profile):
+        raise ComposeError(f"profile '{profile}' is already up: `viena down --profile {profile}` first")
+    env = environment(profile, free_ports)
+    run = Path(env["VIENA_RUN"])
+    run.mkdir(parents=True, exist_ok=True)
+    (run / "env.json").write_text(json.dumps(env, indent=1))
+    cmd = [sys.executable, "-m", "supervisor.supervisord", "-c", str(conf)]
+    ports = ", ".join(f"{k}={v}" for k, v in env.items() if k.endswith("_PORT"))
+    print(f"viena: profile {profile} up ({ports}); logs in {run}", file=sys.stderr, flush=True)
+    if detach:
+        subprocess.run(cmd, env=_supervisor_env(env), check=True)
+        return 0
+    proc = subprocess.Popen(cmd + ["-n"], env=_supervisor_env(env))
+    # Ctrl-C reaches supervisord too (same process group): it stops every program, then us.
+    while True:
+        try:
+            return proc.wait()
+        except KeyboardInterrupt:
+            print("viena: stopping (Ctrl-C)", file=sys.stderr, flush=True)
+            proc.send_signal(signal.SIGINT)
+
+
+def ctl(profile: str, *args: str, capture: bool = False) -> subprocess.CompletedProcess:
+    env = saved_environment(profile)
+    # supervisorctl does not follow [include]; talk to the socket directly
+    url = f"unix://{env['VIENA_RUN']}/supervisor.sock"
+    cmd = [sys.executable, "-m", "supervisor.supervisorctl", "-s", url, *args]
+    return subprocess.run(cmd, env=_supervisor_env(env), text=True,
+                          capture_output=capture)
+
+
+def status(profile: str) -> int:
+    if not supervisord_pid(profile):
+        print(f"profile '{profile}' is down")
+        return 3
+    return ctl(profile, "status").returncode
+
+
+def logs(profile: str, program: str, follow: bool = False) -> int:
+    if follow:
+        return ctl(profile, "tail", "-f", program).returncode
+    path = Path(saved_environment(profile)["VIENA_RUN"]) / f"{program}.log"
+    if not path.exists():
+        raise ComposeError(f"no log for '{program}' in {path.parent}")
+    sys.stdout.write(path.read_text()[-20000:])
+    return 0
+
+
+def down(profile: str, timeout: float = 15.0) -> int:
+    pid = supervisord_pid(profile)
+    if pid is None:
+        print(f"profile '{profile}' is already down")
+        return 0
+    ctl(profile, "shutdown", capture=True)
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and supervisord_pid(profile):
+        time.sleep(0.1)
+    if supervisord_pid(profile):
+        os.kill(pid, signal.SIGTERM)
+        raise ComposeError(f"supervisord (pid {pid}) did not stop in {timeout:.0f} s; sent SIGTERM")
+    print(f"profile '{profile}' is down")
+    return 0
+
+
+def running_profiles() -> list[str]:
+    return [p for p in profiles() if supervisord_pid(p)]
