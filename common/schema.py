@@ -54,9 +54,9 @@ class F:
 
     @staticmethod
     def int(v):
-        if type(v) is int:
+        if type(v) is int and -(1 << 63) <= v < (1 << 64):     # what msgpack can carry
             return v
-        raise Invalid("expected an integer", v)
+        raise Invalid("expected a 64-bit integer", v)
 
     @staticmethod
     def time(v):
@@ -190,7 +190,11 @@ class Schema:
 
     def encode(self, sample: dict) -> bytes:
         """Check and pack; raises SampleError rather than publish a bad value."""
-        return msgpack.packb(self._fields.check(sample, self.name, True), use_bin_type=True)
+        checked = self._fields.check(sample, self.name, True)
+        try:
+            return msgpack.packb(checked, use_bin_type=True)
+        except (OverflowError, TypeError, ValueError) as exc:   # e.g. in an F.any / F.map field
+            raise SampleError(f"{self.name}: cannot be packed ({exc})") from None
 
     def decode(self, payload: bytes | bytearray | memoryview) -> dict:
         """Unpack and check; unknown fields from newer producers are kept."""
