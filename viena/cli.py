@@ -15,7 +15,15 @@ import sys
 
 from viena import compose, router, sub
 
-BENCHES = ["sim", "gnss", "imu", "steering", "estimator"]
+BENCHES = ["sim", "gnss", "imu", "steering", "estimator", "laptop"]
+#: commands that live in their own module, each with build_parser(parser) and run(args)
+TOOLS = {
+    "monitor": ("viena.monitor", "live dashboard of every service"),
+    "record": ("viena.record", "record samples into an MCAP file"),
+    "replay": ("viena.replay", "publish a recording back into the dataflow"),
+    "export": ("viena.export", "an MCAP recording as CSV or JSON"),
+    "plot": ("viena.plot", "a recorded drive as a PNG"),
+}
 CALIBRATIONS = {"imu": "viena.services.imu.calibration"}
 
 
@@ -69,6 +77,18 @@ def build_parser() -> argparse.ArgumentParser:
     router.build_parser(p)
     p.set_defaults(func=router.run)
 
+    for name, (module_name, help_text) in TOOLS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name != module_name:
+                raise
+            continue
+        p = cmds.add_parser(name, help=help_text, description=module.__doc__,
+                            formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.build_parser(p)
+        p.set_defaults(func=module.run)
+
     p = cmds.add_parser("bench", help="print benchmark figures")
     p.add_argument("names", nargs="*", metavar="NAME", help=f"any of {', '.join(BENCHES)} (default all)")
     p.set_defaults(func=_bench)
@@ -86,8 +106,9 @@ def _bench(args) -> int:
         if name not in BENCHES:
             print(f"viena bench: unknown benchmark {name!r} (have {', '.join(BENCHES)})", file=sys.stderr)
             return 2
+        module_name = "viena.bench_laptop" if name == "laptop" else f"viena.services.{name}.bench"
         try:
-            module = importlib.import_module(f"viena.services.{name}.bench")
+            module = importlib.import_module(module_name)
         except ModuleNotFoundError:
             print(f"# {name}: no benchmark yet")
             continue

@@ -1,7 +1,8 @@
 """`viena up/down/status/logs`: a thin wrapper around supervisord and supervisorctl.
 
 A profile is a supervisord file `compose/<profile>.conf` plus the settings its programs
-read (`compose/<profile>.toml`). Profiles use environment variables for what differs
+read (`compose/<profile>.toml`, passed as VIENA_SETTINGS). Programs are defined once, in
+`compose/programs/*.ini`, and a profile includes those it runs. Profiles use environment variables for what differs
 between runs: VIENA_RUN (the run directory: socket, pid, logs), VIENA_PYTHON, and ports
 named VIENA_*_PORT. `up` fixes them once and writes them to `<run>/env.json`, so the
 later commands (and supervisorctl, which re-reads the same file) see the same values.
@@ -71,6 +72,7 @@ def environment(profile: str, free_ports: bool = False) -> dict[str, str]:
         "VIENA_RUN": str(run_dir(profile)),
         "VIENA_PYTHON": sys.executable,
         "VIENA_PROFILE": profile,
+        "VIENA_SETTINGS": str(compose_dir() / f"{profile}.toml"),
     }
     for name, default in port_variables(profile).items():
         if name in os.environ:
@@ -118,7 +120,7 @@ def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = 
     print(f"viena: profile {profile} up ({ports}); logs in {run}", file=sys.stderr, flush=True)
     if detach:
         subprocess.run(cmd, env=_supervisor_env(env), check=True)
-        return 0
+        return wait_running(profile)
     proc = subprocess.Popen(cmd + ["-n"], env=_supervisor_env(env))
     # Ctrl-C reaches supervisord too (same process group): it stops every program, then us.
     while True:
@@ -136,6 +138,28 @@ def ctl(profile: str, *args: str, capture: bool = False) -> subprocess.Completed
     cmd = [sys.executable, "-m", "supervisor.supervisorctl", "-s", url, *args]
     return subprocess.run(cmd, env=_supervisor_env(env), text=True,
                           capture_output=capture)
+
+
+def program_states(profile: str) -> dict[str, str]:
+    out = ctl(profile, "status", capture=True).stdout
+    return {line.split()[0]: line.split()[1] for line in out.splitlines() if len(line.split()) > 1}
+
+
+def wait_running(profile: str, timeout: float = 30.0) -> int:
+    """Like `docker compose up --wait`: return once every program is up (or has failed)."""
+    end = time.monotonic() + timeout
+    states: dict[str, str] = {}
+    while time.monotonic() < end:
+        states = program_states(profile)
+        if states and not any(s in ("STARTING", "BACKOFF") for s in states.values()):
+            break
+        time.sleep(0.2)
+    bad = {name: s for name, s in states.items() if s != "RUNNING"}
+    if bad:
+        print("viena: not running: " + ", ".join(f"{n} {s}" for n, s in bad.items())
+              + f" (see `viena logs NAME --profile {profile}`)", file=sys.stderr)
+        return 1
+    return 0
 
 
 def status(profile: str) -> int:
