@@ -82,7 +82,7 @@ def test_zenoh_cli_put_with_msgpack_encoder(sim_profile):
     env, router = sim_profile
     import msgpack
     import zenoh
-    from conftest import collect
+    from vienatest import collect
     from viena.common.config import load_zenoh_config
 
     with zenoh.open(load_zenoh_config(mode="client", connect=[router])) as s:

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from conftest import collect
+from vienatest import collect
 from viena.common.health import HEALTH
 from viena.services.sim.truth import TRUTH
 
@@ -77,7 +77,7 @@ def test_stops_within_two_seconds_with_status_zero(procs, router, session, sig):
 
 
 def test_service_waits_for_a_router_that_comes_later(procs, tmp_path):
-    from conftest import free_port, wait_for_port
+    from vienatest import free_port, wait_for_port
     import zenoh
     from viena.common.config import load_zenoh_config
 

@@ -98,7 +98,14 @@ def _supervisor_env(env: dict[str, str]) -> dict[str, str]:
 
 
 def supervisord_pid(profile: str) -> int | None:
-    pidfile = run_dir(profile) / "supervisord.pid"
+    """The pid of the profile's running supervisord, if it runs."""
+    run = run_dir(profile)
+    try:
+        if json.loads((run / "env.json").read_text()).get("VIENA_PROFILE") != profile:
+            return None                         # VIENA_RUN shared by several profiles
+    except (OSError, ValueError):
+        return None
+    pidfile = run / "supervisord.pid"
     try:
         pid = int(pidfile.read_text().strip())
         os.kill(pid, 0)

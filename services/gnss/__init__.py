@@ -1,0 +1,8 @@
+"""GNSS receivers: NovAtel OEM4 binary and NMEA (design §2's three rooms).
+
+- ``driver``: the wire protocols, bytes in, typed values out (no zenoh, no msgpack);
+- ``fix``: the viena.gnss.fix/1 sample and how each receiver's logs become one;
+- ``service``: ``viena-gnss``, the zenoh glue;
+- ``simulator``: the receivers' twins and the replay of the car's 2016 drive;
+- ``bench``: ``viena bench gnss``.
+"""

@@ -1,0 +1,314 @@
+"""A NovAtel OEM4 receiver on a serial URL: commands with matched responses, logs out.
+
+Usable from a Python shell::
+
+    from viena.services.gnss.driver import NovatelReceiver, StartupConfig
+    rx = NovatelReceiver("socket://127.0.0.1:5000")
+    rx.startup(StartupConfig())          # 9600, break, UNLOGALL, COM 115200, ... LOG BESTXYZ
+    msg = rx.read(timeout=1.0)           # LogMessage(header, BestXyz(...), t_host_ns)
+    rx.shutdown()
+
+Each command waits for the response carrying its own message ID (response bit set), so a
+response can never be taken for the next command's (the old library's desync); a
+rejection raises CommandError with the receiver's text, silence raises CommandTimeout.
+"""
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import serial
+
+from ..link import SerialLink, carries_break
+from .commands import (
+    BodyError, Com, Command, CommandError, CommandTimeout, DynamicsCommand, Log, Reset,
+    Response, SaveConfig, SbasControl, Unlog, Unlogall,
+)
+from .enums import (
+    Dynamics, MessageId, Port, SbasKeyword, SbasSystem, SbasTestMode, Trigger,
+)
+from .framing import MAX_BODY_LENGTH, DecoderStats, Frame, FrameDecoder
+from .logs import LogMessage, decode_log
+
+log = logging.getLogger(__name__)
+
+#: Port reset by break (COM command, §2.6.10): two 250 ms breaks 1.5 s apart, then
+#: at least 250 ms of quiet.
+BREAK_S = 0.25
+BREAK_GAP_S = 1.5
+BREAK_SETTLE_S = 0.25
+
+
+@dataclass(frozen=True)
+class LogRequest:
+    """One LOG of the start-up sequence."""
+
+    message: MessageId = MessageId.BESTXYZ
+    trigger: Trigger = Trigger.ONTIME
+    period: float = 0.05
+    offset: float = 0.0
+    hold: bool = False
+
+
+@dataclass(frozen=True)
+class StartupConfig:
+    """The car's start-up sequence; every field is a setting of the service."""
+
+    initial_baud: int = 9600        # the receiver's factory baud, what a break restores
+    baud: int = 115200
+    send_break: bool | None = None  # None: when the URL can carry one (not socket://)
+    unlogall_port: Port = Port.THISPORT_ALL
+    dynamics: Dynamics = Dynamics.AIR
+    sbas: SbasKeyword | None = SbasKeyword.ENABLE   # None: leave SBAS alone
+    sbas_system: SbasSystem = SbasSystem.AUTO
+    sbas_prn: int = 0
+    sbas_testmode: SbasTestMode = SbasTestMode.NONE
+    logs: tuple[LogRequest, ...] = (LogRequest(),)
+
+
+@dataclass
+class ReceiverStats(DecoderStats):
+    """Decoder counters plus what happened above the framing."""
+
+    logs: int = 0
+    responses: int = 0
+    unmatched_responses: int = 0    # a response no command was waiting for
+    unknown_messages: int = 0       # good CRC, message ID this driver does not decode
+    body_errors: int = 0            # good CRC, body size wrong for its message ID
+    command_failures: int = 0       # rejected or unanswered commands
+    dropped_logs: int = 0           # read() queue full: nobody is reading
+
+
+class _Pending:
+    __slots__ = ("message_id", "event", "response")
+
+    def __init__(self, message_id: int):
+        self.message_id = message_id
+        self.event = threading.Event()
+        self.response: Response | None = None
+
+
+class NovatelReceiver:
+    """Binary OEM4 receiver on a pyserial URL.
+
+    ``on_log(LogMessage)`` is called from the reader thread for every decoded log; without
+    it, logs queue up for ``read()``. ``on_link_error(exc)`` reports a port that failed.
+    """
+
+    def __init__(self, url: str, *, command_timeout: float = 1.0,
+                 on_log: Callable[[LogMessage], None] | None = None,
+                 on_link_error: Callable[[Exception], None] | None = None,
+                 max_body_length: int = MAX_BODY_LENGTH, queue_size: int = 1000):
+        self.url = url
+        self.command_timeout = command_timeout
+        self._on_log = on_log
+        self._on_link_error = on_link_error
+        self._decoder = FrameDecoder(max_body_length)
+        self.stats = ReceiverStats()
+        self._logs: queue.Queue[LogMessage] = queue.Queue(maxsize=queue_size)
+        self._link = SerialLink(url, self._on_bytes, self._on_error, name="novatel")
+        self._command_lock = threading.Lock()
+        self._pending: _Pending | None = None
+        self._state_lock = threading.Lock()
+        self.last_frame_host_ns = 0
+
+    # -- port ------------------------------------------------------------------------
+    @property
+    def is_open(self) -> bool:
+        return self._link.is_open
+
+    def open(self, baudrate: int = 9600) -> None:
+        self._decoder.reset()
+        self._link.open(baudrate)
+
+    def close(self) -> None:
+        """Close the port; a command waiting for its response gives up at once."""
+        with self._state_lock:
+            pending = self._pending
+        if pending is not None:
+            pending.event.set()
+        self._link.close()
+
+    def __enter__(self) -> "NovatelReceiver":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- commands --------------------------------------------------------------------
+    def command(self, cmd: Command, timeout: float | None = None) -> Response:
+        """Send a command and wait for its response; OK returns it, anything else raises
+        CommandError (with the receiver's text), silence raises CommandTimeout."""
+        timeout = self.command_timeout if timeout is None else timeout
+        with self._command_lock:
+            pending = _Pending(cmd.MESSAGE_ID)
+            with self._state_lock:
+                self._pending = pending
+            try:
+                self._link.write(cmd.frame())
+                answered = pending.event.wait(timeout)
+            finally:
+                with self._state_lock:
+                    self._pending = None
+        if not answered:
+            self.stats.command_failures += 1
+            raise CommandTimeout(f"{cmd.name}: no response within {timeout:.2f} s")
+        response = pending.response
+        if response is None:
+            raise serial.SerialException(f"{cmd.name}: port closed while waiting for the response")
+        if not response.ok:
+            self.stats.command_failures += 1
+            raise CommandError(cmd.name, response.response_id, response.text)
+        return response
+
+    def log(self, message: MessageId | int, trigger: Trigger = Trigger.ONTIME,
+            period: float = 0.0, offset: float = 0.0, hold: bool = False,
+            port: Port = Port.THISPORT) -> Response:
+        return self.command(Log(port=port, message=message, trigger=trigger, period=period,
+                                offset=offset, hold=int(hold)))
+
+    def unlog(self, message: MessageId | int, port: Port = Port.THISPORT) -> Response:
+        return self.command(Unlog(port=port, message=message))
+
+    def unlogall(self, port: Port = Port.THISPORT_ALL, held: bool = True,
+                 timeout: float | None = None) -> Response:
+        return self.command(Unlogall(port=port, held=int(held)), timeout)
+
+    def com(self, baud: int, **settings) -> Response:
+        """COM on this port; the host's own rate is left to the caller (see set_baud)."""
+        return self.command(Com(baud=baud, **settings))
+
+    def dynamics(self, dynamics: Dynamics = Dynamics.AIR) -> Response:
+        return self.command(DynamicsCommand(dynamics))
+
+    def sbascontrol(self, keyword: SbasKeyword = SbasKeyword.ENABLE,
+                    system: SbasSystem = SbasSystem.AUTO, prn: int = 0,
+                    testmode: SbasTestMode = SbasTestMode.NONE) -> Response:
+        return self.command(SbasControl(keyword, system, prn, testmode))
+
+    def reset(self, delay: int = 0) -> Response:
+        return self.command(Reset(delay))
+
+    def saveconfig(self) -> Response:
+        return self.command(SaveConfig())
+
+    def set_baud(self, baudrate: int) -> None:
+        """Change the host side's rate of the open port."""
+        self._link.set_baudrate(baudrate)
+
+    # -- the car's sequences ---------------------------------------------------------
+    def startup(self, config: StartupConfig = StartupConfig()) -> None:
+        """Open (if needed) and configure the receiver the way the car does."""
+        if not self.is_open:
+            self.open(config.initial_baud)
+        else:
+            self.set_baud(config.initial_baud)
+        send_break = carries_break(self.url) if config.send_break is None else config.send_break
+        if send_break:
+            self._reset_port_by_break()
+        self._unlogall_at(config)
+        try:
+            self.com(config.baud)
+        except CommandTimeout:
+            # Some firmware switches before answering; the next command proves the link.
+            log.info("%s: no answer to COM %d, switching anyway", self.url, config.baud)
+        self.set_baud(config.baud)
+        self.dynamics(config.dynamics)
+        if config.sbas is not None:
+            self.sbascontrol(config.sbas, config.sbas_system, config.sbas_prn,
+                             config.sbas_testmode)
+        for req in config.logs:
+            self.log(req.message, req.trigger, req.period, req.offset, req.hold)
+
+    def _reset_port_by_break(self) -> None:
+        self._link.send_break(BREAK_S)
+        time.sleep(BREAK_GAP_S)
+        self._link.send_break(BREAK_S)
+        time.sleep(BREAK_SETTLE_S)
+
+    def _unlogall_at(self, config: StartupConfig) -> None:
+        """UNLOGALL at the factory rate; a receiver whose saved configuration kept the
+        working rate answers at that one instead."""
+        try:
+            self.unlogall(config.unlogall_port)
+        except CommandTimeout:
+            if config.baud == config.initial_baud:
+                raise
+            log.info("%s: no answer at %d baud, trying %d", self.url, config.initial_baud,
+                     config.baud)
+            self.set_baud(config.baud)
+            self.unlogall(config.unlogall_port)
+
+    def shutdown(self, timeout: float = 0.5) -> None:
+        """Stop the logs (best effort) and close the port."""
+        if self.is_open:
+            try:
+                self.unlogall(Port.THISPORT_ALL, timeout=timeout)
+            except (CommandError, CommandTimeout, serial.SerialException, OSError) as exc:
+                log.info("%s: UNLOGALL at shutdown failed: %s", self.url, exc)
+        self.close()
+
+    # -- logs ------------------------------------------------------------------------
+    def read(self, timeout: float | None = None) -> LogMessage:
+        """Next decoded log (when no on_log callback is set); queue.Empty on timeout."""
+        return self._logs.get(timeout=timeout)
+
+    # -- reader thread ---------------------------------------------------------------
+    def _on_bytes(self, data: bytes, t_host_ns: int) -> None:
+        for frame in self._decoder.feed(data, t_host_ns):
+            self.last_frame_host_ns = t_host_ns
+            self._dispatch(frame)
+        self._sync_decoder_stats()
+
+    def _dispatch(self, frame: Frame) -> None:
+        stats = self.stats
+        if frame.header.is_response:
+            try:
+                response = Response.from_body(frame.body)
+            except BodyError as exc:
+                stats.body_errors += 1
+                log.warning("%s: bad response frame: %s", self.url, exc)
+                return
+            stats.responses += 1
+            with self._state_lock:
+                pending = self._pending
+                if pending is not None and pending.message_id == frame.header.message_id:
+                    pending.response = response
+                    pending.event.set()
+                    return
+            stats.unmatched_responses += 1
+            log.info("%s: response to %s nobody waited for: %s", self.url,
+                     MessageId(frame.header.message_id).name, response.text)
+            return
+        try:
+            message = decode_log(frame)
+        except BodyError as exc:
+            stats.body_errors += 1
+            log.warning("%s: %s", self.url, exc)
+            return
+        if message is None:
+            stats.unknown_messages += 1
+            return
+        stats.logs += 1
+        if self._on_log is not None:
+            self._on_log(message)
+            return
+        try:
+            self._logs.put_nowait(message)
+        except queue.Full:
+            stats.dropped_logs += 1
+
+    def _sync_decoder_stats(self) -> None:
+        d = self._decoder.stats
+        s = self.stats
+        s.frames, s.crc_errors, s.length_errors = d.frames, d.crc_errors, d.length_errors
+        s.resyncs, s.discarded_bytes = d.resyncs, d.discarded_bytes
+
+    def _on_error(self, exc: Exception) -> None:
+        log.warning("%s: port failed: %s", self.url, exc)
+        if self._on_link_error is not None:
+            self._on_link_error(exc)

@@ -1,0 +1,316 @@
+"""A Razor unit's calibration: what turns firmware frames into SI values in the body frame.
+
+The models are the seed's (§5.5), applied to what the firmware sends (board axes, which
+on the car are the body axes: x right, y forward, z up):
+
+- accelerometer: the firmware already divides by the gains and offsets in its EEPROM,
+  frame[g] = (LSB - eeprom_offset) / eeprom_gain, so the host undoes that and applies its
+  own six-position line LSB = gain * a[g] + offset. Table 5.3 is both, by default.
+- gyro: rate = frame - bias (the firmware removes a boot-time bias; the host the rest).
+- magnetometer: H_c = C^-1 (H_s - offset) (seed eq. 5.16), then tesla = H_c * tesla_per_unit.
+  Table 5.4 is the default (its offset is in nT; in HMC5843 counts at 1300 counts/gauss).
+
+Calibrations live in a TOML file, one table per unit, written by `viena calibrate imu`
+(see `viena.services.imu.calibration_cli`). A unit that has none gets the seed's values,
+and the log says so.
+"""
+from __future__ import annotations
+
+import dataclasses
+import datetime as dt
+import json
+import math
+import os
+import tempfile
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from viena.common.errors import ConfigError
+from viena.services.imu.driver.razor_ahrs import ACCEL_PER_G, DEFAULT_MAGN_SCALE
+from viena.services.imu.fitting import AccelFit, GyroBiasFit, MagFit, ellipse_c_inv
+
+STANDARD_GRAVITY = 9.80665                     # m/s^2 per g
+#: HMC5843 at the gain its i2cdevlib driver sets (1.0 Ga range): 1300 counts per gauss
+HMC5843_TESLA_PER_COUNT = 1e-4 / 1300
+FIRMWARES = ("viena", "razor-ahrs")
+
+#: seed table 5.3, per axis x, y, z: LSB = gain * a[g] + offset
+TABLE_5_3_GAIN_LSB_PER_G = (266.04, 266.27, 253.66)
+TABLE_5_3_OFFSET_LSB = (13.83, -3.18, -3.47)
+#: seed table 5.4 ("Razor 1"): hard-iron offset in nT (x, y), ellipse angle and axis ratio
+TABLE_5_4_OFFSET_NT = (-25828.0, -21703.0)
+TABLE_5_4_ALPHA_DEG = 107.5238
+TABLE_5_4_AXIS_RATIO = 0.9567
+
+DEFAULT_FILE = Path(os.environ.get("VIENA_CONFIG_DIR", "~/.config/viena")).expanduser() / "imu_calibration.toml"
+
+
+def _vec(v) -> tuple:
+    return tuple(float(x) for x in v)
+
+
+def _mat(m) -> tuple:
+    return tuple(tuple(float(x) for x in row) for row in m)
+
+
+@dataclass(frozen=True)
+class ImuCalibration:
+    firmware: str = "viena"
+    accel_gain_lsb_per_g: tuple = TABLE_5_3_GAIN_LSB_PER_G
+    accel_offset_lsb: tuple = TABLE_5_3_OFFSET_LSB
+    eeprom_gain_lsb_per_g: tuple = TABLE_5_3_GAIN_LSB_PER_G
+    eeprom_offset_lsb: tuple = TABLE_5_3_OFFSET_LSB
+    gyro_bias_dps: tuple = (0.0, 0.0, 0.0)
+    mag_offset: tuple = (0.0, 0.0, 0.0)          # in the firmware's magnetometer units
+    mag_c_inv: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    tesla_per_mag_unit: float = HMC5843_TESLA_PER_COUNT
+    mag_method: str = "seed"
+    source: str = field(default="seed", compare=False)    # "seed", or the file it came from
+    updated: str = field(default="", compare=False)
+    info: dict = field(default_factory=dict, compare=False)   # fit reports, kept in the file
+
+    # -- updating from fits -----------------------------------------------------------------
+    def with_accel(self, fit: AccelFit) -> "ImuCalibration":
+        return dataclasses.replace(self, accel_gain_lsb_per_g=_vec(fit.gain_lsb_per_g),
+                                   accel_offset_lsb=_vec(fit.offset_lsb),
+                                   info={**self.info, "accel": {
+                                       "rms_residual_g": list(fit.rms_residual_g),
+                                       "samples": dict(fit.samples)}})
+
+    def with_gyro(self, fit: GyroBiasFit) -> "ImuCalibration":
+        return dataclasses.replace(self, gyro_bias_dps=_vec(fit.bias_dps),
+                                   info={**self.info, "gyro": {"std_dps": list(fit.std_dps),
+                                                                "samples": fit.samples}})
+
+    def with_mag(self, fit: MagFit) -> "ImuCalibration":
+        info = {"rms_residual": fit.rms_residual, "radius": fit.radius}
+        info.update({k: v for k, v in fit.info.items() if k != "r_cal"})
+        return dataclasses.replace(self, mag_offset=_vec(fit.offset), mag_c_inv=_mat(fit.c_inv),
+                                   mag_method=fit.method, info={**self.info, "mag": info})
+
+    # -- frames to LSB and back (what the accelerometer fit works on) ---------------------------
+    def accel_lsb(self, accel_g: np.ndarray) -> np.ndarray:
+        """Undo the firmware's EEPROM calibration: frame g -> chip LSB."""
+        return np.asarray(accel_g, float) * self.eeprom_gain_lsb_per_g + self.eeprom_offset_lsb
+
+    def validate(self, where: str = "calibration") -> "ImuCalibration":
+        if self.firmware not in FIRMWARES:
+            raise ConfigError(f"{where}: firmware must be one of {', '.join(FIRMWARES)}")
+        for name in ("accel_gain_lsb_per_g", "eeprom_gain_lsb_per_g"):
+            if not all(math.isfinite(g) and g > 0 for g in getattr(self, name)):
+                raise ConfigError(f"{where}: {name} must be three positive numbers")
+        for name in ("accel_offset_lsb", "eeprom_offset_lsb", "gyro_bias_dps", "mag_offset"):
+            v = getattr(self, name)
+            if len(v) != 3 or not all(math.isfinite(x) for x in v):
+                raise ConfigError(f"{where}: {name} must be three finite numbers")
+        m = np.array(self.mag_c_inv, float)
+        if m.shape != (3, 3) or not np.all(np.isfinite(m)) or abs(np.linalg.det(m)) < 1e-6:
+            raise ConfigError(f"{where}: mag c_inv must be an invertible 3x3 matrix")
+        if not (math.isfinite(self.tesla_per_mag_unit) and self.tesla_per_mag_unit > 0):
+            raise ConfigError(f"{where}: mag tesla_per_unit must be positive")
+        return self
+
+
+def seed_calibration(firmware: str = "viena") -> ImuCalibration:
+    """The seed's values (tables 5.3 and 5.4) in the units each firmware sends."""
+    c_inv = _mat(ellipse_c_inv(math.radians(TABLE_5_4_ALPHA_DEG), TABLE_5_4_AXIS_RATIO))
+    offset_counts = tuple(nt * 1e-9 / HMC5843_TESLA_PER_COUNT for nt in TABLE_5_4_OFFSET_NT) + (0.0,)
+    if firmware == "viena":
+        return ImuCalibration(firmware, mag_offset=offset_counts, mag_c_inv=c_inv)
+    if firmware == "razor-ahrs":
+        # The stock firmware sends its own calibrated values: accel in 1/256 g (the driver
+        # divides), magnetometer in counts * 100/600 with its default MAGN limits.
+        nominal = (ACCEL_PER_G,) * 3
+        return ImuCalibration(firmware, nominal, (0.0,) * 3, nominal, (0.0,) * 3,
+                              mag_offset=tuple(c * DEFAULT_MAGN_SCALE for c in offset_counts),
+                              mag_c_inv=c_inv,
+                              tesla_per_mag_unit=HMC5843_TESLA_PER_COUNT / DEFAULT_MAGN_SCALE)
+    raise ValueError(f"unknown firmware {firmware!r}")
+
+
+# -- applying it, fast: one affine map per sensor ---------------------------------------------
+class SampleCalibrator:
+    """Precomputes the per-sensor affine maps so one frame costs a few float operations."""
+
+    def __init__(self, cal: ImuCalibration):
+        self.calibration = cal
+        g = STANDARD_GRAVITY
+        eg, eo = cal.eeprom_gain_lsb_per_g, cal.eeprom_offset_lsb
+        hg, ho = cal.accel_gain_lsb_per_g, cal.accel_offset_lsb
+        self._a_scale = [g * eg[i] / hg[i] for i in range(3)]
+        self._a_bias = [g * (eo[i] - ho[i]) / hg[i] for i in range(3)]
+        k = math.pi / 180.0
+        self._w_bias = [k * b for b in cal.gyro_bias_dps]
+        m = np.array(cal.mag_c_inv, float) * cal.tesla_per_mag_unit
+        self._m = m.tolist()
+        self._m_bias = (-m @ np.array(cal.mag_offset, float)).tolist()
+        self._m_np, self._m_bias_np = m, -m @ np.array(cal.mag_offset, float)
+
+    def accel(self, a) -> list[float]:
+        s, b = self._a_scale, self._a_bias
+        return [s[0] * a[0] + b[0], s[1] * a[1] + b[1], s[2] * a[2] + b[2]]
+
+    def gyro(self, w) -> list[float]:
+        k, b = math.pi / 180.0, self._w_bias
+        return [k * w[0] - b[0], k * w[1] - b[1], k * w[2] - b[2]]
+
+    def mag(self, h) -> list[float]:
+        (m0, m1, m2), b = self._m, self._m_bias
+        x, y, z = h
+        return [m0[0] * x + m0[1] * y + m0[2] * z + b[0],
+                m1[0] * x + m1[1] * y + m1[2] * z + b[1],
+                m2[0] * x + m2[1] * y + m2[2] * z + b[2]]
+
+    # vectorised, for recordings
+    def accel_array(self, a: np.ndarray) -> np.ndarray:
+        return np.asarray(a, float) * self._a_scale + self._a_bias
+
+    def gyro_array(self, w: np.ndarray) -> np.ndarray:
+        return np.radians(np.asarray(w, float)) - self._w_bias
+
+    def mag_array(self, h: np.ndarray) -> np.ndarray:
+        return np.asarray(h, float) @ self._m_np.T + self._m_bias_np
+
+
+# -- the TOML file ------------------------------------------------------------------------------
+def to_table(cal: ImuCalibration) -> dict:
+    table = {
+        "firmware": cal.firmware,
+        "updated": cal.updated,
+        "accel": {"gain_lsb_per_g": list(cal.accel_gain_lsb_per_g),
+                  "offset_lsb": list(cal.accel_offset_lsb),
+                  "eeprom_gain_lsb_per_g": list(cal.eeprom_gain_lsb_per_g),
+                  "eeprom_offset_lsb": list(cal.eeprom_offset_lsb)},
+        "gyro": {"bias_dps": list(cal.gyro_bias_dps)},
+        "mag": {"method": cal.mag_method, "offset": list(cal.mag_offset),
+                "c_inv": [list(r) for r in cal.mag_c_inv], "tesla_per_unit": cal.tesla_per_mag_unit},
+    }
+    if cal.info:
+        table["info"] = cal.info
+    return table
+
+
+def from_table(table: dict, where: str, source: str) -> ImuCalibration:
+    """A unit's table; sensors or values it leaves out keep the seed's values."""
+    try:
+        firmware = table.get("firmware", "viena")
+        base = seed_calibration(firmware) if firmware in FIRMWARES else ImuCalibration(firmware)
+        accel, gyro, mag = table.get("accel", {}), table.get("gyro", {}), table.get("mag", {})
+        cal = ImuCalibration(
+            firmware=firmware,
+            accel_gain_lsb_per_g=_vec(accel.get("gain_lsb_per_g", base.accel_gain_lsb_per_g)),
+            accel_offset_lsb=_vec(accel.get("offset_lsb", base.accel_offset_lsb)),
+            eeprom_gain_lsb_per_g=_vec(accel.get("eeprom_gain_lsb_per_g", base.eeprom_gain_lsb_per_g)),
+            eeprom_offset_lsb=_vec(accel.get("eeprom_offset_lsb", base.eeprom_offset_lsb)),
+            gyro_bias_dps=_vec(gyro.get("bias_dps", base.gyro_bias_dps)),
+            mag_offset=_vec(mag.get("offset", base.mag_offset)),
+            mag_c_inv=_mat(mag.get("c_inv", base.mag_c_inv)),
+            tesla_per_mag_unit=float(mag.get("tesla_per_unit", base.tesla_per_mag_unit)),
+            mag_method=str(mag.get("method", base.mag_method)),
+            source=source, updated=str(table.get("updated", "")),
+            info=dict(table.get("info", {})))
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise ConfigError(f"{where}: {exc}") from None
+    return cal.validate(where)
+
+
+def load_file(path: str | Path) -> dict:
+    path = Path(path)
+    try:
+        with path.open("rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError:
+        return {}
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+
+
+def load_calibration(path: str | Path | None, unit: str, firmware: str = "viena") -> tuple[ImuCalibration, str]:
+    """The unit's calibration and one line saying where it came from (for the log).
+    A missing file or unit gives the seed's values; a broken one is a ConfigError."""
+    if path is None:
+        return seed_calibration(firmware), f"{unit}: no calibration file given: using the seed's values"
+    path = Path(path)
+    tables = load_file(path)
+    if unit not in tables:
+        why = "no such file" if not path.exists() else f"no [{unit}] table"
+        return seed_calibration(firmware), f"{unit}: {path}: {why}: using the seed's values (tables 5.3, 5.4)"
+    cal = from_table(tables[unit], f"{path} [{unit}]", str(path))
+    if cal.firmware != firmware:
+        raise ConfigError(f"{path} [{unit}]: calibrated for firmware {cal.firmware!r}, "
+                          f"but the unit runs {firmware!r}")
+    return cal, f"{unit}: calibration from {path} (updated {cal.updated or 'unknown'})"
+
+
+def save_calibration(path: str | Path, unit: str, cal: ImuCalibration) -> ImuCalibration:
+    """Write the unit's table, keeping the other units; atomic (temp file + rename)."""
+    path = Path(path)
+    cal = dataclasses.replace(cal.validate(f"{unit}"), source=str(path),
+                              updated=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"))
+    tables = load_file(path)
+    tables[unit] = to_table(cal)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name, dir=path.parent)
+    with os.fdopen(fd, "w") as f:
+        f.write(dumps(tables))
+    os.replace(tmp, path)
+    return cal
+
+
+HEADER = """\
+# viena IMU calibration: one table per unit, written by `viena calibrate imu`.
+# accel (seed 5.5.1.2), per axis x y z: LSB = gain * a[g] + offset; the firmware sends
+#   (LSB - eeprom_offset) / eeprom_gain, which the host undoes first.
+# gyro: rate = frame - bias_dps.
+# mag (seed eq. 5.16): H_c = c_inv (H_s - offset); tesla = tesla_per_unit * H_c.
+"""
+
+
+def dumps(tables: dict, header: bool = True) -> str:
+    """TOML for our calibration tables: vectors on one line, the model in a comment."""
+    lines = [HEADER] if header else []
+
+    def emit(prefix: str, table: dict) -> None:
+        scalars = {k: v for k, v in table.items() if not isinstance(v, dict)}
+        subs = {k: v for k, v in table.items() if isinstance(v, dict)}
+        if scalars or not subs:
+            lines.append(f"[{prefix}]")
+            lines.extend(f"{_key(k)} = {_toml(v)}" for k, v in scalars.items())
+            lines.append("")
+        for k, v in subs.items():
+            emit(f"{prefix}.{_key(k)}", v)
+
+    for unit, table in tables.items():
+        emit(_key(unit), table)
+    return "\n".join(lines)
+
+
+def _key(k: str) -> str:
+    return k if k.replace("_", "").replace("-", "").isalnum() else json.dumps(k)
+
+
+def _toml(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise ValueError(f"{v} cannot be stored")
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_key(k)} = {_toml(x)}" for k, x in v.items()) + "}"
+    raise ValueError(f"cannot store {v!r} in TOML")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`viena calibrate imu`: see viena.services.imu.calibration_cli."""
+    from viena.services.imu.calibration_cli import main as cli_main
+    return cli_main(argv)

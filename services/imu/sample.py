@@ -1,0 +1,56 @@
+"""viena.imu.sample/1 on viena/<car>/imu/<unit>/sample: this module owns the schema.
+
+Calibrated values in SI and the body frame (x right, y forward, z up), plus what the
+firmware sent, unchanged, so the unit can be re-calibrated from any recording.
+"""
+from __future__ import annotations
+
+from viena.common.schema import F, Schema
+from viena.services.imu.calibration import SampleCalibrator
+from viena.services.imu.driver import Reading
+from viena.services.imu.glitch import MagGlitchFilter
+
+SAMPLE = Schema("viena.imu.sample/1", {
+    "t": F.time,                       # acquisition time, int ns UTC (estimated, see driver.timing)
+    "seq": F.int,                      # host frame counter: gaps are lost frames
+    "unit": F.str,
+    "firmware": F.enum("viena", "razor-ahrs"),
+    "accel_mps2": F.vec(3),            # specific force (at rest: +9.8 on z)
+    "gyro_radps": F.vec(3),
+    "mag_T": F.optional(F.vec(3)),     # None when the reading was a glitch (see glitch.py)
+    "raw": F.struct({
+        "accel_g": F.vec(3),           # as the firmware sent them, board axes
+        "gyro_dps": F.vec(3),
+        "mag_counts": F.vec(3),        # counts (VIENA firmware) or the stock firmware's units
+        "euler_deg": F.optional(F.vec(3)),   # firmware's yaw, pitch, roll: not to be trusted
+    }),
+    "board_id": F.optional(F.int),     # EEPROM id (None: the stock firmware has none)
+})
+
+
+class SampleBuilder:
+    """Reading -> sample dict, for one unit."""
+
+    def __init__(self, unit: str, firmware: str, calibrator: SampleCalibrator,
+                 mag_filter: MagGlitchFilter | None = None):
+        self.unit, self.firmware = unit, firmware
+        self.calibrator = calibrator
+        self.mag_filter = mag_filter or MagGlitchFilter()
+
+    def build(self, reading: Reading) -> dict:
+        f = reading.frame
+        cal = self.calibrator
+        mag = cal.mag(f.mag_counts)
+        return {
+            "t": reading.t_ns,
+            "seq": reading.seq,
+            "unit": self.unit,
+            "firmware": self.firmware,
+            "accel_mps2": cal.accel(f.accel_g),
+            "gyro_radps": cal.gyro(f.gyro_dps),
+            "mag_T": mag if self.mag_filter.accept(mag) else None,
+            "raw": {"accel_g": list(f.accel_g), "gyro_dps": list(f.gyro_dps),
+                    "mag_counts": list(f.mag_counts),
+                    "euler_deg": None if f.euler_deg is None else list(f.euler_deg)},
+            "board_id": f.board_id,
+        }

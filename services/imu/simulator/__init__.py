@@ -1,0 +1,56 @@
+"""Twins of the Razor IMU for the simulated car (they plug into viena.services.sim.twin).
+
+    twin = RazorTwin(car.truth)                          # VIENA firmware, seed figures
+    twin = RazorAhrsTwin(car.truth)                      # stock Razor AHRS firmware
+    twin = RazorReplayTwin.parked("speed_20hz")          # a real recording, as frames
+    endpoint = SerialEndpoint(twin).start()              # driver opens endpoint.url
+"""
+from viena.common.config import merge_settings
+from viena.common.errors import ConfigError
+from viena.services.sim.twin import SerialEndpoint
+from viena.services.imu.simulator.board import LISBON_FIELD_ENU_NT, Measurement, RazorBoard
+from viena.services.imu.simulator.razor_ahrs_twin import RazorAhrsTwin
+from viena.services.imu.simulator.razor_twin import BANNER, RazorReplayTwin, RazorTwin
+
+
+def make_twin(source: str, truth=None, **kwargs):
+    """A twin by name, for settings files: "razor" (VIENA firmware, default), "razor-ahrs",
+    "replay:<parked name>" or "replay:<path to a CSV recording>"."""
+    if source in ("razor", "viena"):
+        return RazorTwin(truth, **kwargs)
+    if source == "razor-ahrs":
+        return RazorAhrsTwin(truth, **kwargs)
+    if source.startswith("replay:"):
+        what = source.split(":", 1)[1]
+        from viena.services.imu.recordings import PARKED
+        if what in PARKED:
+            return RazorReplayTwin.parked(what, **kwargs)
+        return RazorReplayTwin(what, **kwargs)
+    raise ValueError(f"unknown IMU twin {source!r}: razor, razor-ahrs, replay:<name or path>")
+
+
+#: Settings of an IMU twin in the sim's [sim.<name>] table (kind = "razor"), with defaults.
+TWIN_SETTINGS = {
+    "port": 0,                 # TCP port (0 = any free one)
+    "source": "razor",         # razor | razor-ahrs | replay:<parked name or CSV path>
+    "boot_s": -1.0,            # -1: the twin's own (4 s of gyro averaging after reset)
+    "seed": 0,
+}
+
+
+def make_razor_device(name: str, table: dict, car, service) -> SerialEndpoint:
+    """Factory for the sim (kind = "razor")."""
+    source = f"{getattr(service.args, 'config', None)} [sim.{name}]"
+    s = merge_settings(TWIN_SETTINGS, table, source)
+    kwargs = {"seed": s["seed"]}
+    if s["boot_s"] >= 0:
+        kwargs["boot_s"] = s["boot_s"]
+    try:
+        twin = make_twin(s["source"], car.truth, **kwargs)
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    return SerialEndpoint(twin, service.settings.get("host", "127.0.0.1"), s["port"], name).start()
+
+
+__all__ = ["make_razor_device", "TWIN_SETTINGS", "RazorBoard", "Measurement", "LISBON_FIELD_ENU_NT", "RazorTwin", "RazorReplayTwin",
+           "RazorAhrsTwin", "BANNER", "make_twin"]

@@ -1,0 +1,350 @@
+"""`viena plot drive.mcap -o drive.png`: a recorded drive as a picture a person can open.
+
+Left, the car's track on a local map (ENU metres): GNSS fixes (one colour per receiver),
+the estimator's track and, from the simulator, the truth. Right, over time: speed, yaw
+and steering angle from the same sources. The map's origin is the simulator's origin when
+the recording has truth, else the estimator's, else the first valid fix. Samples are read
+defensively: a field a source lacks leaves its line out, never the picture.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from viena.common.errors import InputError, SampleError
+from viena.recording import Recording
+
+#: No-solution position the NovAtel receivers send (see services/gnss/fix.py).
+NO_FIX_ECEF = (100.0, 0.0, 0.0)
+MIN_COURSE_SPEED_MPS = 1.0          # below this a GNSS course over ground is noise
+
+
+@dataclass
+class Series:
+    """One source's values over time: t in s since the drive's start, values as columns."""
+
+    t: list = field(default_factory=list)
+    rows: list = field(default_factory=list)
+
+    def add(self, t: float, row) -> None:
+        self.t.append(t)
+        self.rows.append(row)
+
+    def array(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.asarray(self.t, float), np.asarray(self.rows, float)
+
+
+@dataclass
+class Drive:
+    """What the plot shows, gathered from a recording; no drawing here."""
+
+    origin: tuple[float, float, float] | None = None
+    origin_source: str = ""
+    t0: int | None = None
+    truth: dict = field(default_factory=lambda: defaultdict(Series))
+    estimator: dict = field(default_factory=lambda: defaultdict(Series))
+    gnss: dict = field(default_factory=lambda: defaultdict(lambda: defaultdict(Series)))
+    steering: dict = field(default_factory=lambda: defaultdict(Series))
+    counts: dict = field(default_factory=lambda: defaultdict(int))
+    invalid_fixes: int = 0
+
+    def empty(self) -> bool:
+        return not (self.truth or self.estimator or self.gnss or self.steering)
+
+    def to_map(self) -> None:
+        """ECEF series -> ENU at the origin, vectorised (pymap3d takes arrays)."""
+        import pymap3d
+
+        for source in [self.truth, *self.gnss.values()]:
+            ecef = source.pop("ecef", None)
+            if ecef is None or not ecef.t or self.origin is None:
+                continue
+            t, xyz = ecef.array()
+            e, n, u = pymap3d.ecef2enu(xyz[:, 0], xyz[:, 1], xyz[:, 2], *self.origin)
+            source["enu"] = Series(list(t), np.column_stack([e, n, u]).tolist())
+
+
+def _number(v) -> float | None:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        return None
+    return float(v)
+
+
+def _vec(v, n: int) -> list[float] | None:
+    if not isinstance(v, (list, tuple)) or len(v) != n:
+        return None
+    out = [_number(x) for x in v]
+    return None if any(x is None for x in out) else out
+
+
+def _kind(key: str, schema: str) -> str:
+    """What a sample is, by schema name or else by key (viena/<car>/<service>/...)."""
+    for kind in ("sim.truth", "gnss.fix", "estimator.state", "steering.state"):
+        if schema.startswith(f"viena.{kind}/"):
+            return kind
+    parts = key.split("/")
+    tail = "/".join(parts[2:])
+    if tail == "sim/truth":
+        return "sim.truth"
+    if tail == "estimator/state":
+        return "estimator.state"
+    if tail == "steering/state":
+        return "steering.state"
+    if len(parts) == 5 and parts[2] == "gnss" and parts[4] == "fix":
+        return "gnss.fix"
+    return ""
+
+
+def load_drive(recording: Recording) -> Drive:
+    """Two passes: the first finds the drive's start and the map's origin, the second
+    gathers the series (positions as ECEF, turned into map coordinates in one go)."""
+    drive = Drive()
+    first_fix = None
+    for msg in recording.messages():
+        kind = _kind(msg.key, msg.schema)
+        if not kind:
+            continue
+        drive.t0 = msg.publish_time if drive.t0 is None else min(drive.t0, msg.publish_time)
+        if ((kind == "sim.truth" and drive.origin_source != "simulator origin")
+                or (kind == "estimator.state" and drive.origin is None)):
+            origin = _vec(_decoded(msg).get("origin"), 3)
+            if origin:
+                drive.origin = tuple(origin)
+                drive.origin_source = "simulator origin" if kind == "sim.truth" else "estimator origin"
+        elif kind == "gnss.fix" and first_fix is None:
+            s = _decoded(msg)
+            geo = [_number(s.get(k)) for k in ("lat_deg", "lon_deg", "height_m")]
+            if _valid_fix(s) and None not in geo:
+                first_fix = tuple(geo)
+    if drive.origin is None and first_fix is not None:
+        drive.origin, drive.origin_source = first_fix, "first fix"
+    add = {"sim.truth": _add_truth, "estimator.state": _add_estimator,
+           "gnss.fix": _add_fix, "steering.state": _add_steering}
+    for msg in recording.messages():
+        kind = _kind(msg.key, msg.schema)
+        if kind:
+            s = _decoded(msg)
+            t = s["t"] if type(s.get("t")) is int else msg.publish_time
+            add[kind](drive, (t - drive.t0) / 1e9, msg.key, s)
+    drive.to_map()
+    return drive
+
+
+def _decoded(msg) -> dict:
+    try:
+        value = msg.value()
+    except SampleError:
+        return {}
+    return value if isinstance(value, dict) else {}
+
+
+def _valid_fix(s: dict) -> bool:
+    ecef = _vec(s.get("ecef_m"), 3)
+    return s.get("valid") is not False and ecef is not None and tuple(ecef) != NO_FIX_ECEF
+
+
+def _yaw_deg(rad: float | None) -> float:
+    return math.nan if rad is None else math.degrees(math.atan2(math.sin(rad), math.cos(rad)))
+
+
+def _add_truth(drive: Drive, t: float, _key: str, s: dict) -> None:
+    if not s:
+        return
+    drive.counts["truth"] += 1
+    ecef = _vec(s.get("ecef_m"), 3)
+    if ecef:
+        drive.truth["ecef"].add(t, ecef)
+    if (v := _number(s.get("speed_mps"))) is not None:
+        drive.truth["speed"].add(t, v)
+    euler = _vec(s.get("euler_rad"), 3)
+    if euler:
+        drive.truth["yaw"].add(t, _yaw_deg(euler[0]))
+    if (v := _number(s.get("wheel_angle_rad"))) is not None:
+        drive.truth["wheel"].add(t, math.degrees(v))
+
+
+def _add_estimator(drive: Drive, t: float, _key: str, s: dict) -> None:
+    import pymap3d
+
+    if not s:
+        return
+    drive.counts["estimator"] += 1
+    origin, enu = _vec(s.get("origin"), 3), _vec(s.get("enu_m"), 3)
+    if s.get("position_valid") is not False and origin and enu and drive.origin:
+        if all(abs(a - b) < 1e-9 for a, b in zip(origin, drive.origin)):
+            drive.estimator["enu"].add(t, enu)
+        else:                                 # its own origin: through geodetic into ours
+            geo = pymap3d.enu2geodetic(*enu, *origin)
+            drive.estimator["enu"].add(t, pymap3d.geodetic2enu(*geo, *drive.origin))
+    if (v := _number(s.get("speed_mps"))) is not None:
+        drive.estimator["speed"].add(t, v)
+    if s.get("heading_valid") is not False and (v := _number(s.get("yaw_rad"))) is not None:
+        drive.estimator["yaw"].add(t, _yaw_deg(v))
+
+
+def _add_fix(drive: Drive, t: float, key: str, s: dict) -> None:
+    import pymap3d
+
+    if not s:
+        return
+    unit = s.get("unit") if isinstance(s.get("unit"), str) else key.split("/")[3]
+    drive.counts["gnss"] += 1
+    if not _valid_fix(s) or not drive.origin:
+        drive.invalid_fixes += 1
+        return
+    series = drive.gnss[unit]
+    series["ecef"].add(t, _vec(s["ecef_m"], 3))
+    vel = _vec(s.get("vel_ecef_mps"), 3)
+    if vel:
+        east, north, _up = pymap3d.ecef2enuv(*vel, drive.origin[0], drive.origin[1])
+        speed = math.hypot(east, north)
+        series["speed"].add(t, speed)
+        if speed >= MIN_COURSE_SPEED_MPS:      # yaw: CCW from north, so course = atan2(-E, N)
+            series["yaw"].add(t, math.degrees(math.atan2(-east, north)))
+
+
+def _add_steering(drive: Drive, t: float, _key: str, s: dict) -> None:
+    """Every angle the steering state reports (its field names are its own): *_rad numbers."""
+    if not s:
+        return
+    drive.counts["steering"] += 1
+    for name, v in s.items():
+        if isinstance(name, str) and name.endswith("_rad") and (v := _number(v)) is not None:
+            drive.steering[name[:-4]].add(t, math.degrees(v))
+
+
+# -- drawing --------------------------------------------------------------------------------
+TRUTH_STYLE = dict(color="black", lw=1.2, label="truth (sim)")
+ESTIMATOR_STYLE = dict(color="tab:red", lw=1.2, label="estimator")
+GNSS_COLOURS = ["tab:blue", "tab:green", "tab:purple", "tab:orange", "tab:cyan"]
+
+
+def _wrap_breaks(t: np.ndarray, deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Yaw in +-180: NaN where it wraps, so no line crosses the whole axis."""
+    if len(deg) < 2:
+        return t, deg
+    jumps = np.flatnonzero(np.abs(np.diff(deg)) > 180) + 1
+    return np.insert(t, jumps, np.nan), np.insert(deg, jumps, np.nan)
+
+
+def draw(drive: Drive, title: str, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(15, 9), dpi=100, layout="constrained")
+    grid = fig.add_gridspec(3, 2, width_ratios=[1.15, 1])
+    track = fig.add_subplot(grid[:, 0])
+    speed = fig.add_subplot(grid[0, 1])
+    yaw = fig.add_subplot(grid[1, 1], sharex=speed)
+    steer = fig.add_subplot(grid[2, 1], sharex=speed)
+    fig.suptitle(title, fontsize=12)
+
+    for unit, colour in zip(sorted(drive.gnss), GNSS_COLOURS * 4):
+        series = drive.gnss[unit]
+        style = dict(color=colour, label=f"GNSS {unit}")
+        if series["enu"].t:
+            _, enu = series["enu"].array()
+            track.plot(enu[:, 0], enu[:, 1], ".", ms=3, alpha=0.5, **style)
+        if series["speed"].t:
+            speed.plot(*series["speed"].array(), ".", ms=2, alpha=0.6, **style)
+        if series["yaw"].t:
+            yaw.plot(*series["yaw"].array(), ".", ms=2, alpha=0.6, **style)
+    for source, style in ((drive.truth, TRUTH_STYLE), (drive.estimator, ESTIMATOR_STYLE)):
+        if source["enu"].t:
+            _, enu = source["enu"].array()
+            track.plot(enu[:, 0], enu[:, 1], "-", **style)
+        if source["speed"].t:
+            speed.plot(*source["speed"].array(), "-", **style)
+        if source["yaw"].t:
+            yaw.plot(*_wrap_breaks(*source["yaw"].array()), "-", **style)
+    if drive.truth["wheel"].t:
+        steer.plot(*drive.truth["wheel"].array(), "-", **TRUTH_STYLE)
+    for name, colour in zip(sorted(drive.steering), ["tab:orange", "tab:purple", "tab:olive", "tab:brown"] * 4):
+        steer.plot(*drive.steering[name].array(), "-", lw=1, color=colour, label=f"steering {name}")
+
+    _mark_start(track, drive)
+    track.set_aspect("equal", adjustable="datalim")
+    origin = drive.origin
+    where = (f"{origin[0]:.5f}, {origin[1]:.5f}, {origin[2]:.0f} m ({drive.origin_source})"
+             if origin else "no position")
+    track.set(title="track", xlabel="east [m]", ylabel="north [m]")
+    track.text(0.01, 0.01, f"origin {where}", transform=track.transAxes, fontsize=8, color="0.4")
+    speed.set(title="speed", ylabel="m/s")
+    yaw.set(title="yaw (counter-clockwise from north)", ylabel="deg", ylim=(-185, 185),
+            yticks=range(-180, 181, 90))
+    steer.set(title="steering (wheel angle)", ylabel="deg", xlabel="time since start [s]")
+    for ax in (track, speed, yaw, steer):
+        ax.grid(True, alpha=0.3)
+        handles, labels = ax.get_legend_handles_labels()
+        if handles:
+            ax.legend(fontsize=8, loc="best", markerscale=2.5)
+        elif ax is not track:
+            ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", color="0.5")
+    plt.setp(speed.get_xticklabels(), visible=False)
+    plt.setp(yaw.get_xticklabels(), visible=False)
+    fig.savefig(path, format="png")
+    plt.close(fig)
+
+
+def _mark_start(ax, drive: Drive) -> None:
+    for series in [drive.truth["enu"], drive.estimator["enu"],
+                   *(g["enu"] for g in drive.gnss.values())]:
+        if series.t:
+            x, y = series.rows[0][0], series.rows[0][1]
+            ax.plot([x], [y], marker="o", ms=9, mfc="none", mec="0.2", mew=1.5, ls="none")
+            ax.annotate("start", (x, y), xytext=(8, -12), textcoords="offset points",
+                        fontsize=9, color="0.2")
+            return
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="viena plot", description=__doc__)
+    parser.add_argument("file", help="the recording (an MCAP file from viena record)")
+    parser.add_argument("-o", "--output", metavar="PNG", type=Path, default=None,
+                        help="the picture to write (default: the recording's name with .png)")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    output = args.output or Path(args.file).with_suffix(".png")
+    try:
+        recording = Recording(args.file)
+        drive = load_drive(recording)
+    except InputError as exc:
+        print(f"viena plot: {exc}", file=sys.stderr)
+        return 2
+    for line in recording.report():
+        print(f"viena plot: {recording.path}: {line}", file=sys.stderr)
+    if drive.empty():
+        print(f"viena plot: {recording.path}: nothing to plot (no truth, GNSS, estimator or "
+              f"steering samples)", file=sys.stderr)
+        return 1
+    duration = 0.0
+    if recording.first_log_time is not None:
+        duration = (recording.last_log_time - recording.first_log_time) / 1e9
+    counts = ", ".join(f"{n} {k}" for k, n in drive.counts.items())
+    if drive.invalid_fixes:
+        counts += f" ({drive.invalid_fixes} fixes without a position)"
+    title = f"{Path(args.file).name}: {duration:.1f} s, {counts}"
+    try:
+        draw(drive, title, output)
+    except OSError as exc:
+        print(f"viena plot: cannot write {output}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {output}", file=sys.stderr)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(build_parser().parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,225 @@
+"""`viena record [KEYEXPR ...] -o drive.mcap`: every sample of the selected keys into an MCAP file.
+
+Keys default to viena/** (viena/NAME/** when --car or the settings name a car). Each
+key gets a channel named by its schema; log time is when the sample arrived, publish
+time the sample's own `t`. Ctrl-C, SIGTERM or --duration close the file cleanly.
+While recording, the file is `drive.mcap.part`; it takes its real name only once it is
+complete, so a recording cut short (killed, disk full) never passes for a good one
+(`viena replay` and `viena export` still read a `.part` as far as it goes).
+
+Zenoh's threads only stamp and queue each sample; one thread writes, so a slow disk
+delays the file, not the dataflow.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import queue
+import signal
+import socket
+import sys
+import threading
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+from viena.common.errors import InputError
+from viena.common.keys import Keys
+from viena.common.log import setup_logging
+from viena.common.session import (add_common_arguments, car_name, load_settings_file,
+                                  open_session, zenoh_config)
+from viena.recording import ReceiveClock, RecordingWriter, human_bytes
+
+log = logging.getLogger("viena.record")
+PROGRESS_PERIOD_S = 0.5
+#: how often the progress line is printed when stderr is not a terminal (a log file)
+LOG_PERIOD_S = 10.0
+
+
+class Recorder:
+    """Subscribes to key expressions and writes every sample to a RecordingWriter.
+
+    `start()` declares the subscribers; `stop()` undeclares them, writes what is queued and
+    closes the file. A write error stops the writing; `error` then holds it.
+    """
+
+    def __init__(self, session, keyexprs: list[str], writer: RecordingWriter):
+        self.session, self.keyexprs, self.writer = session, keyexprs, writer
+        self.clock = ReceiveClock()
+        self.error: OSError | None = None
+        self.failed = threading.Event()
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._subscribers = []
+        self._thread = threading.Thread(target=self._write_loop, name="record-writer", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+        clock, put = self.clock, self._queue.put
+
+        def on_sample(sample) -> None:      # zenoh's thread: stamp and queue, nothing else
+            put((clock(), str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
+
+        for keyexpr in self.keyexprs:
+            self._subscribers.append(self.session.declare_subscriber(keyexpr, on_sample))
+
+    @property
+    def samples(self) -> int:
+        return self.writer.samples
+
+    def backlog(self) -> int:
+        return self._queue.qsize()
+
+    def _write_loop(self) -> None:
+        get, write = self._queue.get, self.writer.write
+        while True:
+            item = get()
+            if item is None:
+                return
+            if self.error is not None:
+                continue                     # drain: nothing more goes to a broken file
+            log_time, key, encoding, data = item
+            try:
+                write(key, encoding, log_time, data)
+            except OSError as exc:
+                self.error = exc
+                self.failed.set()
+
+    def stop(self) -> Path | None:
+        """Stop listening, write the backlog, close. The final path, or None if the
+        file could not be completed (it stays as `.part`)."""
+        for sub in self._subscribers:
+            try:
+                sub.undeclare()
+            except Exception as exc:
+                log.debug("undeclare failed: %s", exc)
+        self._subscribers.clear()
+        self._queue.put(None)
+        self._thread.join()
+        if self.error is None:
+            try:
+                return self.writer.close()
+            except OSError as exc:
+                self.error = exc
+        self.writer.abandon()
+        return None
+
+
+def default_output() -> str:
+    return datetime.now(timezone.utc).strftime("viena-%Y%m%d-%H%M%S.mcap")
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="viena record", description=__doc__)
+    parser.add_argument("keyexprs", nargs="*", metavar="KEYEXPR",
+                        help="key expressions to record (default viena/**)")
+    parser.add_argument("-o", "--output", metavar="FILE", default=None,
+                        help="the MCAP file to write (default viena-<UTC time>.mcap)")
+    parser.add_argument("--duration", type=float, default=0.0, metavar="S",
+                        help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress line")
+    add_common_arguments(parser)
+    parser._option_string_actions["--car"].help = (
+        "record only viena/NAME/** (default: every car, viena/**)")
+    return parser
+
+
+class Progress:
+    """One line on stderr: rewritten in place on a terminal, printed now and then in a log."""
+
+    def __init__(self, recorder: Recorder, output: Path, quiet: bool):
+        self.recorder, self.output, self.quiet = recorder, output, quiet
+        self.tty = sys.stderr.isatty()
+        self._t0 = self._t_last = self._t_printed = time.monotonic()
+        self._n_last = 0
+
+    def update(self, final: bool = False) -> None:
+        now = time.monotonic()
+        n = self.recorder.samples
+        rate = (n - self._n_last) / max(now - self._t_last, 1e-6)
+        self._t_last, self._n_last = now, n
+        if self.quiet or final:
+            return
+        line = (f"recording {self.output}: {n} samples, {rate:.0f}/s, "
+                f"{human_bytes(self.recorder.writer.size)}")
+        if self.tty:
+            print(f"\r{line}\033[K", end="", file=sys.stderr, flush=True)
+        elif now - self._t_printed >= LOG_PERIOD_S:
+            self._t_printed = now
+            print(line, file=sys.stderr, flush=True)
+
+    def done(self, path: Path) -> None:
+        if self.tty and not self.quiet:
+            print("\r\033[K", end="", file=sys.stderr)
+        r = self.recorder
+        print(f"recorded {r.samples} samples on {r.writer.keys} keys in "
+              f"{time.monotonic() - self._t0:.1f} s into {path} ({human_bytes(path.stat().st_size)})",
+              file=sys.stderr, flush=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
+    try:
+        toml = load_settings_file(args)
+        conf = zenoh_config(args, toml)
+        car = car_name(args, toml)
+        keyexprs = args.keyexprs or [Keys(car).all if args.car or "car" in toml else "viena/**"]
+    except (InputError, ValueError) as exc:
+        print(f"viena record: {exc}", file=sys.stderr)
+        return 2
+    output = Path(args.output or default_output())
+    try:
+        writer = RecordingWriter(output, metadata={
+            "keyexprs": " ".join(keyexprs), "car": car, "host": socket.gethostname(),
+            "started": datetime.now(timezone.utc).isoformat(timespec="seconds")})
+    except OSError as exc:
+        print(f"viena record: cannot write {output}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
+
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    session = open_session(conf, stop)
+    if session is None:
+        writer.discard()
+        print("viena record: stopped before the router answered: nothing recorded", file=sys.stderr)
+        return 1
+    recorder = Recorder(session, keyexprs, writer)
+    progress = Progress(recorder, output, args.quiet)
+    try:
+        recorder.start()
+        _record_until_stopped(recorder, progress, args.duration, stop)
+    finally:
+        path = recorder.stop()
+        session.close()
+    if recorder.error is not None:
+        exc = recorder.error
+        print(f"viena record: cannot write {output}: {exc.strerror or exc} "
+              f"(after {recorder.samples} samples; what was written is in {writer.part}, "
+              f"not a complete recording)", file=sys.stderr)
+        return 1
+    progress.done(path)
+    return 0
+
+
+def _record_until_stopped(recorder: Recorder, progress: Progress, duration: float,
+                          stop: threading.Event) -> None:
+    print(f"recording {', '.join(recorder.keyexprs)} into {progress.output} (Ctrl-C stops)",
+          file=sys.stderr, flush=True)
+    deadline = time.monotonic() + duration if duration > 0 else None
+    while not stop.is_set() and not recorder.failed.is_set():
+        wait = PROGRESS_PERIOD_S
+        if deadline is not None:
+            wait = min(wait, deadline - time.monotonic())
+            if wait <= 0:
+                break
+        if stop.wait(wait):
+            break
+        progress.update()
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(build_parser().parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,368 @@
+"""Recordings: viena samples in MCAP files, written by `viena record` and read by replay,
+export and plot.
+
+Layout of a recording (https://mcap.dev/spec):
+
+- one channel per key (and per zenoh encoding, should a key carry two): topic = the key,
+  message encoding `msgpack` (`json` for JSON text), schema named after the encoding's
+  suffix (`viena.sim.truth/1`), and the zenoh encoding itself in the channel metadata
+  (`zenoh_encoding`) so that replay restores it exactly;
+- log time = when the sample arrived at the recorder (UTC ns, steady: wall clock at the
+  start plus a monotonic clock), publish time = the sample's own `t` when it has one;
+- zstd-compressed chunks with CRCs, so that damage is detected rather than decoded.
+
+Reading is forgiving on purpose: a recording cut short (recorder killed, disk full) or
+damaged is read as far as it can be. A damaged chunk is skipped and the reading goes on;
+a broken file structure ends it. `Recording.problems` and `Recording.stopped` say what
+happened and where, in bytes and in seconds into the drive.
+"""
+from __future__ import annotations
+
+import json
+import os
+import struct
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Iterator
+
+import msgpack
+from mcap.exceptions import EndOfFile, McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Message, Metadata
+from mcap.records import Schema as McapSchema
+from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.writer import CompressionType, Writer
+
+from viena.common.errors import InputError, SampleError
+from viena.common.schema import MSGPACK, unpack
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+ENCODING_KEY = "zenoh_encoding"
+PROFILE = "viena"
+METADATA_NAME = "viena.recording"
+#: small chunks: a recorder that dies loses at most this much (about 2 s of the whole car)
+CHUNK_BYTES = 256 * 1024
+#: no record of ours is near this; a corrupted length field must not allocate gigabytes
+_RECORD_LIMIT = 256 * 1024 * 1024
+_MESSAGE_ENCODINGS = {MSGPACK: "msgpack", "application/json": "json"}
+_ZENOH_ENCODINGS = {v: k for k, v in _MESSAGE_ENCODINGS.items()}
+
+
+class RecordingError(InputError):
+    """A file that cannot be read as a recording at all."""
+
+
+def message_encoding(zenoh_encoding: str) -> str:
+    """MCAP message encoding of a zenoh encoding: 'application/msgpack;x/1' -> 'msgpack'."""
+    base = zenoh_encoding.split(";", 1)[0]
+    return _MESSAGE_ENCODINGS.get(base, base)
+
+
+def schema_name(zenoh_encoding: str) -> str:
+    """The schema suffix of a zenoh encoding ('' when it has none)."""
+    return zenoh_encoding.split(";", 1)[1] if ";" in zenoh_encoding else ""
+
+
+def sample_time(data: bytes) -> int | None:
+    """A msgpack sample's own `t` (int ns), read without unpacking the rest of it."""
+    if not data or not (0x80 <= data[0] <= 0x8F or data[0] in (0xDE, 0xDF)):
+        return None
+    unpacker = msgpack.Unpacker(raw=False)
+    unpacker.feed(data)
+    try:
+        for _ in range(unpacker.read_map_header()):
+            if unpacker.unpack() == "t":
+                t = unpacker.unpack()
+                return t if type(t) is int and 0 <= t < 1 << 64 else None
+            unpacker.skip()
+    except Exception:       # garbage is the recording's business, not the recorder's
+        return None
+    return None
+
+
+def decode_value(data: bytes, encoding: str) -> Any:
+    """A payload as Python values: msgpack or JSON text; SampleError if it is neither."""
+    kind = message_encoding(encoding)
+    if kind == "json" or (kind != "msgpack" and data[:1] in (b"{", b"[")):
+        try:
+            return json.loads(data)
+        except ValueError as exc:
+            raise SampleError(f"not valid JSON: {exc}") from None
+    return unpack(data)
+
+
+class ReceiveClock:
+    """UTC ns that never steps: the wall clock once, then a monotonic clock.
+
+    Replay derives its timing from log times, so an NTP step during a drive must not
+    become a pause or a burst.
+    """
+
+    def __init__(self):
+        self._wall0 = time.time_ns()
+        self._mono0 = time.monotonic_ns()
+
+    def __call__(self) -> int:
+        return self._wall0 + time.monotonic_ns() - self._mono0
+
+
+@dataclass(frozen=True, slots=True)
+class Recorded:
+    """One sample as recorded."""
+
+    key: str
+    encoding: str           # the zenoh encoding it arrived with
+    log_time: int           # ns UTC, when it arrived
+    publish_time: int       # ns UTC, the sample's own `t` (log time if it had none)
+    data: bytes
+
+    @property
+    def schema(self) -> str:
+        return schema_name(self.encoding)
+
+    def value(self) -> Any:
+        return decode_value(self.data, self.encoding)
+
+
+class RecordingWriter:
+    """Writes samples into `<path>.part`; `close()` finishes the MCAP file and renames it
+    to `path`, so that a file under its real name is always complete.
+
+    Write errors (full disk, file size limit) are raised as OSError; then `abandon()`
+    leaves the `.part` file, readable up to its last whole chunk, under its `.part` name.
+    """
+
+    def __init__(self, path: str | Path, metadata: dict[str, str] | None = None,
+                 chunk_size: int = CHUNK_BYTES):
+        self.path = Path(path)
+        if self.path.is_dir():
+            raise IsADirectoryError(21, "is a directory", str(self.path))
+        self.part = self.path.with_name(self.path.name + ".part")
+        self._file = open(self.part, "wb")
+        self._writer = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self._channels: dict[tuple[str, str], list[int]] = {}     # -> [channel id, sequence]
+        self._schemas: dict[str, int] = {}
+        self.samples = 0
+        self._writer.start(profile=PROFILE, library="viena record")
+        if metadata:
+            self._writer.add_metadata(METADATA_NAME, {k: str(v) for k, v in metadata.items()})
+
+    @property
+    def keys(self) -> int:
+        return len({key for key, _ in self._channels})
+
+    @property
+    def size(self) -> int:
+        """Bytes written so far (what is still in the open chunk is not counted)."""
+        return self._file.tell()
+
+    def write(self, key: str, encoding: str, log_time: int, data: bytes,
+              publish_time: int | None = None) -> None:
+        channel = self._channels.get((key, encoding))
+        if channel is None:
+            channel = self._channels[(key, encoding)] = [self._register(key, encoding), 0]
+        channel[1] = (channel[1] + 1) & 0xFFFFFFFF
+        if publish_time is None:
+            publish_time = sample_time(data) or log_time
+        self._writer.add_message(channel[0], log_time, data, publish_time, channel[1])
+        self.samples += 1
+
+    def _register(self, key: str, encoding: str) -> int:
+        name = schema_name(encoding)
+        schema_id = 0
+        if name:
+            schema_id = self._schemas.get(name) or self._writer.register_schema(name, "", b"")
+            self._schemas[name] = schema_id
+        return self._writer.register_channel(key, message_encoding(encoding), schema_id,
+                                             {ENCODING_KEY: encoding})
+
+    def close(self) -> Path:
+        """Finish the file, make it durable, and give it its real name."""
+        self._writer.finish()
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        os.replace(self.part, self.path)
+        return self.path
+
+    def abandon(self) -> None:
+        """Close without finishing: the `.part` file stays as the evidence it is."""
+        try:
+            self._file.close()
+        except OSError:
+            pass
+
+    def discard(self) -> None:
+        """Close and remove: nothing was recorded worth keeping."""
+        self.abandon()
+        self.part.unlink(missing_ok=True)
+
+
+class KeyFilter:
+    """Which keys to keep: any key included by one of the key expressions (all if none)."""
+
+    def __init__(self, patterns: Iterable[str] | None = None):
+        import zenoh
+
+        self._exprs = []
+        for pattern in patterns or ():
+            try:
+                self._exprs.append(zenoh.KeyExpr(pattern))
+            except Exception as exc:
+                raise InputError(f"{pattern!r} is not a key expression ({exc})") from None
+        self._cache: dict[str, bool] = {}
+
+    def __call__(self, key: str) -> bool:
+        if not self._exprs:
+            return True
+        keep = self._cache.get(key)
+        if keep is None:
+            keep = self._cache[key] = any(e.includes(key) for e in self._exprs)
+        return keep
+
+
+class Recording:
+    """A recording, read as far as it can be read.
+
+    Iterate `messages()`; afterwards `problems` lists what was skipped, `stopped` says
+    where reading ended early (None when the file was read to its end), and `complete`
+    is true when the file was closed properly by its recorder.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        try:
+            self.size = self.path.stat().st_size
+            with open(self.path, "rb") as f:
+                magic = f.read(len(MCAP_MAGIC))
+        except OSError as exc:
+            raise RecordingError(f"{self.path}: {exc.strerror}") from None
+        if magic != MCAP_MAGIC:
+            raise RecordingError(f"{self.path}: {'empty file' if not magic else 'not an MCAP file'}")
+        self.metadata: dict[str, str] = {}
+        self.problems: list[str] = []
+        self.stopped: str | None = None
+        self.complete = False
+        self.count = 0
+        self.first_log_time: int | None = None
+        self.last_log_time: int | None = None
+        self._channels: dict[int, tuple[str, str]] = {}
+        self._schemas: dict[int, str] = {}
+
+    def messages(self, keys: KeyFilter | None = None) -> Iterator[Recorded]:
+        """Every readable sample in file order, for the keys `keys` keeps."""
+        self.problems, self.stopped, self.complete, self.count = [], None, False, 0
+        orphans = 0
+        try:
+            f = open(self.path, "rb")
+        except OSError as exc:
+            raise RecordingError(f"{self.path}: {exc.strerror}") from None
+        with f:
+            self._read_summary(f)
+            f.seek(0)
+            for offset, record in self._records(f):
+                for r in self._unchunked(offset, record):
+                    if not isinstance(r, Message):
+                        self._define(r)
+                        continue
+                    channel = self._channels.get(r.channel_id)
+                    if channel is None:
+                        orphans += 1
+                        continue
+                    self._seen(r.log_time)
+                    if keys is None or keys(channel[0]):
+                        yield Recorded(channel[0], channel[1], r.log_time, r.publish_time, r.data)
+        if orphans:
+            self.problems.append(f"{orphans} samples skipped: their channel was defined in a "
+                                 f"damaged part of the file")
+
+    def _records(self, f) -> Iterator[tuple[int, object]]:
+        """Top-level records with their byte offsets, up to the end or the first one that
+        cannot be read (then `stopped` says where and why)."""
+        records = StreamReader(f, emit_chunks=True, record_size_limit=_RECORD_LIMIT).records
+        offset = 0
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                self.complete = True
+                return
+            except EndOfFile:
+                self._stop(offset, "the file ends here without its closing records (the recorder "
+                                   "did not finish: killed, or the disk filled)"
+                           if offset >= self.size else "the file ends inside a record (cut short)")
+                return
+            except (McapError, struct.error, ValueError, UnicodeDecodeError) as exc:
+                self._stop(offset, f"unreadable record ({_describe(exc)})")
+                return
+            yield offset, record
+            offset = f.tell()
+
+    def _unchunked(self, offset: int, record) -> list:
+        """A chunk's records (none if it is damaged: noted in `problems`), or the record."""
+        if not isinstance(record, Chunk):
+            return [record]
+        try:
+            return breakup_chunk(record, validate_crc=True)
+        except Exception as exc:          # zstd, CRC, struct: all mean a damaged chunk
+            self.problems.append(f"{self._where(offset)}: damaged chunk skipped ({_describe(exc)})")
+            return []
+
+    def _read_summary(self, f) -> None:
+        """Channels from the summary of a complete file: they survive a damaged chunk."""
+        try:
+            summary = make_reader(f).get_summary()
+        except Exception:
+            return                                    # no summary: learnt while reading
+        if summary is not None:
+            for schema in summary.schemas.values():
+                self._define(schema)
+            for channel in summary.channels.values():
+                self._define(channel)
+
+    def _define(self, record) -> None:
+        if isinstance(record, McapSchema):
+            self._schemas[record.id] = record.name
+        elif isinstance(record, Channel):
+            encoding = record.metadata.get(ENCODING_KEY)
+            if encoding is None:                      # a recording made by another tool
+                base = _ZENOH_ENCODINGS.get(record.message_encoding, record.message_encoding)
+                name = self._schemas.get(record.schema_id, "")
+                encoding = f"{base};{name}" if name else base
+            self._channels[record.id] = (record.topic, encoding)
+        elif isinstance(record, Metadata) and record.name == METADATA_NAME:
+            self.metadata = dict(record.metadata)
+
+    def _seen(self, log_time: int) -> None:
+        self.count += 1
+        if self.first_log_time is None or log_time < self.first_log_time:
+            self.first_log_time = log_time
+        if self.last_log_time is None or log_time > self.last_log_time:
+            self.last_log_time = log_time
+
+    def _where(self, offset: int) -> str:
+        where = f"byte {offset} of {self.size}"
+        if self.first_log_time is not None:
+            where += f", {(self.last_log_time - self.first_log_time) / 1e9:.3f} s into the recording"
+        return where
+
+    def _stop(self, offset: int, why: str) -> None:
+        self.stopped = f"stopped at {self._where(offset)} after {self.count} samples: {why}"
+
+    def report(self) -> list[str]:
+        """What a person should know after reading: problems, then where it stopped."""
+        return [*self.problems, *([self.stopped] if self.stopped else [])]
+
+
+def _describe(exc: Exception) -> str:
+    text = str(exc).strip()
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def human_bytes(n: float) -> str:
+    for unit in ("B", "kB", "MB", "GB"):
+        if n < 1000 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000
+    return f"{n:.1f} GB"

@@ -1,0 +1,235 @@
+"""`viena replay drive.mcap`: publish a recording back into the dataflow with its timing.
+
+Samples go out on their recorded keys, with their recorded encodings and bytes, spaced as
+they arrived at the recorder (log times), `--rate` times faster (0: as fast as the link
+takes them). `--car NAME` moves every viena/<car>/ key to viena/NAME/, so a drive can be
+replayed beside a live car. A recording cut short or damaged is played as far as it can
+be read; replay then says where it stopped and exits with status 1.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import queue
+import signal
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Iterable
+
+from viena.common.errors import InputError
+from viena.common.keys import ROOT, Keys
+from viena.common.log import setup_logging
+from viena.common.measure import percentile
+from viena.common.session import add_common_arguments, load_settings_file, open_session, zenoh_config
+from viena.recording import KeyFilter, Recorded, Recording
+
+log = logging.getLogger("viena.replay")
+EARLY_S = 0.0002
+STOP_SLICE_S = 0.1
+
+
+def rename_car(key: str, car: str | None) -> str:
+    """viena/<any car>/rest -> viena/<car>/rest; other keys unchanged."""
+    if car is None:
+        return key
+    parts = key.split("/", 2)
+    if len(parts) >= 2 and parts[0] == ROOT:
+        return "/".join([ROOT, car, *parts[2:]])
+    return key
+
+
+@dataclass
+class PlayStats:
+    samples: int = 0
+    keys: set = field(default_factory=set)
+    passes: int = 0
+    #: seconds the latest samples went out after their due time (empty for --rate 0)
+    lateness_s: deque = field(default_factory=lambda: deque(maxlen=1_000_000))
+
+
+class Player:
+    """Publishes recorded samples on a session, paced by their log times."""
+
+    def __init__(self, session, rate: float = 1.0, car: str | None = None):
+        if rate < 0:
+            raise ValueError("rate must be >= 0")
+        self.session, self.rate, self.car = session, rate, car
+        self._publishers: dict[tuple[str, str], object] = {}
+        self.stats = PlayStats()
+
+    def _publisher(self, key: str, encoding: str):
+        import zenoh
+
+        pub = self._publishers.get((key, encoding))
+        if pub is None:
+            # BLOCK: under congestion a replay is late rather than incomplete.
+            pub = self._publishers[(key, encoding)] = self.session.declare_publisher(
+                key, encoding=zenoh.Encoding(encoding),
+                congestion_control=zenoh.CongestionControl.BLOCK)
+        return pub
+
+    def play(self, messages: Iterable[Recorded], stop: threading.Event) -> None:
+        """One pass: the first sample goes out now, every other one at its log-time offset."""
+        t0_log = t0 = None
+        stats = self.stats
+        for msg in messages:
+            key = rename_car(msg.key, self.car)
+            pub = self._publisher(key, msg.encoding)
+            if self.rate > 0:
+                if t0 is None:
+                    t0_log, t0 = msg.log_time, time.monotonic()
+                due = t0 + (msg.log_time - t0_log) / 1e9 / self.rate
+                if self._sleep_until(due, stop):
+                    return
+                pub.put(msg.data)
+                stats.lateness_s.append(time.monotonic() - due)
+            else:
+                if stop.is_set():
+                    return
+                pub.put(msg.data)
+            stats.samples += 1
+            stats.keys.add(key)
+        stats.passes += 1
+
+    @staticmethod
+    def _sleep_until(due: float, stop: threading.Event) -> bool:
+        """Sleep until `due` (monotonic s); True if stopped first. time.sleep wakes up more
+        precisely than Event.wait, so the stop flag is only looked at between slices; a
+        sample due within EARLY_S goes now, as sleeping that little overshoots more."""
+        while True:
+            wait = due - time.monotonic()
+            if wait <= EARLY_S:
+                return stop.is_set()
+            if stop.is_set():
+                return True
+            time.sleep(min(wait, STOP_SLICE_S))
+
+    def close(self) -> None:
+        for pub in self._publishers.values():
+            try:
+                pub.undeclare()
+            except Exception as exc:
+                log.debug("undeclare failed: %s", exc)
+        self._publishers.clear()
+
+
+class Prefetch:
+    """Reads samples ahead in a thread, so that decompressing the next chunk of the file
+    happens while the player waits, not when the next sample is due."""
+
+    _END = object()
+
+    def __init__(self, messages: Iterable[Recorded], depth: int = 20000):
+        self._queue: queue.Queue = queue.Queue(maxsize=depth)
+        self._closed = threading.Event()
+        self._thread = threading.Thread(target=self._read, args=(messages,), name="replay-read",
+                                        daemon=True)
+        self._thread.start()
+
+    def _read(self, messages) -> None:
+        try:
+            for msg in messages:
+                if not self._offer(msg):
+                    return
+            self._offer(self._END)
+        except BaseException as exc:            # handed to the player, raised there
+            self._offer(exc)
+
+    def _offer(self, item) -> bool:
+        while not self._closed.is_set():
+            try:
+                self._queue.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def __iter__(self):
+        try:
+            while True:
+                item = self._queue.get()
+                if item is self._END:
+                    return
+                if isinstance(item, BaseException):
+                    raise item
+                yield item
+        finally:
+            self._closed.set()
+            self._thread.join(timeout=1)
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="viena replay", description=__doc__)
+    parser.add_argument("file", help="the recording (an MCAP file from viena record)")
+    parser.add_argument("--rate", type=float, default=1.0,
+                        help="speed: 1 is as recorded, 2 twice as fast, 0 as fast as possible")
+    parser.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")
+    parser.add_argument("--keys", nargs="+", metavar="KEYEXPR",
+                        help="replay only keys these key expressions include (as recorded, "
+                             "before --car renames them)")
+    add_common_arguments(parser)
+    parser._option_string_actions["--car"].help = (
+        "publish under viena/NAME/ instead of the recorded car's keys (default: as recorded)")
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
+    try:
+        if args.rate < 0:
+            raise InputError(f"--rate must be >= 0, got {args.rate}")
+        if args.car is not None:
+            Keys(args.car)                               # checks the name
+        conf = zenoh_config(args, load_settings_file(args))
+        keys = KeyFilter(args.keys)
+        recording = Recording(args.file)
+    except (InputError, ValueError) as exc:
+        print(f"viena replay: {exc}", file=sys.stderr)
+        return 2
+
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    session = open_session(conf, stop)
+    if session is None:
+        return 0
+    player = Player(session, args.rate, args.car)
+    # The reading thread must let the player in on time: switch threads every 0.5 ms
+    # (Python's default is 5 ms) so that a due sample waits at most that for the GIL.
+    sys.setswitchinterval(0.0005)
+    t_start = time.monotonic()
+    damaged = False
+    try:
+        while not stop.is_set():
+            player.play(Prefetch(recording.messages(keys)), stop)
+            if not damaged:                     # say it once, even when looping
+                for line in recording.report():
+                    damaged = True
+                    print(f"viena replay: {recording.path}: {line}", file=sys.stderr, flush=True)
+            if not args.loop or player.stats.samples == 0:
+                break
+    except InputError as exc:
+        print(f"viena replay: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        player.close()
+        session.close()
+    stats = player.stats
+    timing = ""
+    if stats.lateness_s:
+        timing = f"; 99 % within {percentile(stats.lateness_s, 99) * 1e3:.1f} ms of their time"
+    print(f"replayed {stats.samples} samples on {len(stats.keys)} keys in "
+          f"{time.monotonic() - t_start:.1f} s ({stats.passes} "
+          f"{'pass' if stats.passes == 1 else 'passes'}){timing}", file=sys.stderr)
+    return 1 if damaged else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(build_parser().parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
