@@ -6,5 +6,5 @@ shared = find_packages(include=["common", "common.*", "services", "services.*"])
 setup(
     packages=["viena", *(f"viena.{name}" for name in shared)],
     package_dir={"viena": "viena", "viena.common": "common", "viena.services": "services"},
-    package_data={"viena.services.steering": ["*.eds"], "viena": ["data/*"]},
+    package_data={"viena.services.steering": ["*.eds"]},
 )

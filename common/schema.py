@@ -47,18 +47,32 @@ def _finite_float(v) -> float:
     raise Invalid("expected a finite number", v)
 
 
+def _fast(expr: str):
+    """Attach an inline test for `v` that passes exactly the values a check keeps unchanged;
+    schemas compile these into one function for the common case (see _Fields)."""
+    def mark(fn):
+        fn.fast = expr
+        return fn
+    return mark
+
+
+_fast("type(v) is float and v - v == 0.0")(_finite_float)
+
+
 class F:
     """Field checks. Each takes a value and returns the value to keep, or raises Invalid."""
 
     float = staticmethod(_finite_float)
 
     @staticmethod
+    @_fast("type(v) is int and -9223372036854775808 <= v < 18446744073709551616")
     def int(v):
         if type(v) is int and -(1 << 63) <= v < (1 << 64):     # what msgpack can carry
             return v
         raise Invalid("expected a 64-bit integer", v)
 
     @staticmethod
+    @_fast("type(v) is int and 315964800000000000 <= v <= 7258118400000000000")
     def time(v):
         """Absolute time, int ns UTC (between 1980 and 2200)."""
         if type(v) is int and 315_964_800_000_000_000 <= v <= 7_258_118_400_000_000_000:
@@ -66,18 +80,21 @@ class F:
         raise Invalid("expected a time in int ns UTC", v)
 
     @staticmethod
+    @_fast("type(v) is str")
     def str(v):
         if type(v) is str:
             return v
         raise Invalid("expected text", v)
 
     @staticmethod
+    @_fast("type(v) is bool")
     def bool(v):
         if type(v) is bool:
             return v
         raise Invalid("expected true or false", v)
 
     @staticmethod
+    @_fast("True")
     def any(v):
         return v
 
@@ -100,6 +117,8 @@ class F:
             if isinstance(v, (list, tuple)) and len(v) == n:
                 return [_finite_float(x) for x in v]
             raise Invalid(f"expected a list of {n} finite numbers", v)
+        items = " and ".join(f"type(v[{i}]) is float and v[{i}] - v[{i}] == 0.0" for i in range(n))
+        check.fast = f"type(v) is list and len(v) == {n}" + (f" and {items}" if n <= 6 else " and False")
         return check
 
     @staticmethod
@@ -126,6 +145,8 @@ class F:
         def check(v):
             return None if v is None else inner(v)
         check.optional = True
+        if hasattr(inner, "fast"):
+            check.fast = f"v is None or ({inner.fast})"
         return check
 
     @staticmethod
@@ -143,7 +164,24 @@ class _Fields:
         self.fields = dict(fields)
         self._items = list(self.fields.items())
         self._keys = frozenset(self.fields)
-        self._required = [k for k, c in fields.items() if not getattr(c, "optional", False)]
+        self._all_valid = self._compile()
+
+    def _compile(self):
+        """One function testing every field inline: True means the sample is valid as it
+        is (the usual case, at a fraction of the cost); False means take the slow path,
+        which converts what it can and says exactly what is wrong."""
+        lines = ["def all_valid(sample):", "    get = sample.get"]
+        for i, (k, c) in enumerate(self._items):
+            expr = getattr(c, "fast", f"C[{i}](v) is v")
+            lines.append(f"    v = get({k!r}, M)")
+            if getattr(c, "optional", False):
+                lines.append(f"    if v is not M and not ({expr}): return False")
+            else:
+                lines.append(f"    if v is M or not ({expr}): return False")
+        lines.append("    return True")
+        scope = {"M": _MISSING, "C": [c for _, c in self._items]}
+        exec("\n".join(lines), scope)
+        return scope["all_valid"]
 
     def check(self, sample: Any, where: str, strict: bool) -> dict:
         """Checks in place (a fresh dict from msgpack, or the caller's own for encode)."""
@@ -152,6 +190,11 @@ class _Fields:
         if strict and not sample.keys() <= self._keys:
             extra = sorted(set(sample) - self._keys, key=str)[0]
             raise SampleError(f"{where}: unknown field {extra!r}")
+        try:
+            if self._all_valid(sample):
+                return sample
+        except (Invalid, SampleError):
+            pass                                  # the slow path below says what is wrong
         k = None
         try:
             for k, c in self._items:

@@ -213,7 +213,9 @@ class MonitorModel:
             return view
         h, age = view.health.value, view.health.age_s
         view.uptime_s = _plus(_number(h.get("uptime_s")), age)
-        view.rates_hz = _numbers(h.get("rates_hz"))
+        counts = _numbers(h.get("counts"))
+        # a rate of something that never happened (unknown_messages 0.0) is only noise
+        view.rates_hz = {k: v for k, v in _numbers(h.get("rates_hz")).items() if v or counts.get(k)}
         view.errors = {k: v for k, v in _numbers(h.get("errors")).items() if v}
         # as the service reported it: the health's own age says how old that report is
         view.last_sample_age_s = _number(h.get("last_sample_age_s"))
@@ -266,7 +268,7 @@ def fmt_num(v, digits: int = 3) -> str:
         if not math.isfinite(v):
             return str(v)
         return f"{v:.{digits}f}" if v == 0 or 1e-3 <= abs(v) < 1e6 else f"{v:.{digits}g}"
-    return str(v)[:40]
+    return str(v)[:40] or "-"
 
 
 def fmt_vec(v, digits: int = 2, scale: float = 1.0) -> str:
@@ -342,8 +344,8 @@ def truth_cells(s: dict) -> dict[str, str]:
 
 
 #: steering state fields shown first when present; the rest follow as they come
-STEERING_FIRST = ("armed", "state", "mode", "owner", "target_rad", "measured_rad",
-                  "angle_rad", "setpoint_rad", "watchdog", "fault")
+STEERING_FIRST = ("phase", "armed", "owner", "angle_deg", "target_deg", "goal_deg", "watchdog",
+                  "trip", "fault", "drive_heartbeat", "ds402", "decision", "limits")
 
 
 def generic_cells(s: dict, first=()) -> dict[str, str]:
@@ -357,7 +359,7 @@ def generic_cells(s: dict, first=()) -> dict[str, str]:
         elif isinstance(v, dict):
             cells[str(name)] = fmt_map(v, 2) if v else "-"
         elif isinstance(v, (list, tuple)):
-            cells[str(name)] = fmt_vec(v, 3) if _vec(v) else str(v)[:40]
+            cells[str(name)] = fmt_vec(v, 3) if _vec(v) else (", ".join(map(str, v))[:40] or "-")
         else:
             cells[str(name)] = fmt_num(v)
     return cells
@@ -370,9 +372,6 @@ def generic_state(state: dict, limit: int = 3) -> str:
 
 
 # -- rendering -------------------------------------------------------------------------------
-Cell = "str | tuple[str, str]"          # text, or (text, rich style)
-
-
 class Grid:
     """A titled table drawn as aligned text.
 
@@ -385,6 +384,7 @@ class Grid:
         self.rows: list[list[tuple[str, str]]] = []
 
     def add(self, *cells) -> None:
+        """Cells are text, or (text, rich style)."""
         self.rows.append([c if isinstance(c, tuple) else (str(c), "") for c in cells])
 
     def text(self):
@@ -394,8 +394,9 @@ class Grid:
                   for i, h in enumerate(self.headers)]
         out = Text(no_wrap=True, overflow="ellipsis", end="")
         out.append(f"\n{self.title}\n", style="bold")
-        out.append("  ".join(h.ljust(w) for h, w in zip(self.headers, widths)).rstrip() + "\n",
-                   style="underline")
+        if any(self.headers):
+            out.append("  ".join(h.ljust(w) for h, w in zip(self.headers, widths)).rstrip() + "\n",
+                       style="underline")
         for row in self.rows:
             for i, ((cell, style), width) in enumerate(zip(row, widths)):
                 out.append(cell.ljust(width) if i < len(widths) - 1 else cell, style=style)
@@ -446,6 +447,17 @@ def _sample_rows(title: str, rows: dict[str, Aged], cells_of, label: str) -> Gri
     return grid
 
 
+def _field_rows(title: str, aged: Aged, cells: dict[str, str], per_row: int = 4) -> Grid:
+    """A sample with many fields (the steering state) as name/value pairs, a few a line."""
+    style = "dim" if aged.stale else ""
+    pairs = [("age", _age_cell(aged)), ("Hz", (_rate(aged), "")),
+             *((name, (value, style)) for name, value in cells.items())]
+    grid = Grid(title, *([""] * (2 * per_row)))
+    for i in range(0, len(pairs), per_row):
+        grid.add(*(cell for name, value in pairs[i:i + per_row] for cell in ((name, "bold"), value)))
+    return grid
+
+
 def render(view: View, title: str = ""):
     """The view as one rich renderable."""
     from rich.console import Group
@@ -457,8 +469,8 @@ def render(view: View, title: str = ""):
     if view.imu:
         grids.append(_sample_rows("IMU", view.imu, imu_cells, "unit"))
     if view.steering:
-        grids.append(_sample_rows("steering", {"state": view.steering},
-                                  lambda s: generic_cells(s, STEERING_FIRST), ""))
+        grids.append(_field_rows("steering", view.steering,
+                                 generic_cells(view.steering.value, STEERING_FIRST)))
     if view.estimator:
         grids.append(_sample_rows("estimator", {"state": view.estimator}, estimator_cells, ""))
     if view.truth:

@@ -210,12 +210,16 @@ def _add_fix(drive: Drive, t: float, key: str, s: dict) -> None:
 
 
 def _add_steering(drive: Drive, t: float, _key: str, s: dict) -> None:
-    """Every angle the steering state reports (its field names are its own): *_rad numbers."""
+    """Every angle the steering state reports, by the unit in its name: *_deg, *_rad."""
     if not s:
         return
     drive.counts["steering"] += 1
     for name, v in s.items():
-        if isinstance(name, str) and name.endswith("_rad") and (v := _number(v)) is not None:
+        if not isinstance(name, str) or (v := _number(v)) is None:
+            continue
+        if name.endswith("_deg"):
+            drive.steering[name[:-4]].add(t, v)
+        elif name.endswith("_rad"):
             drive.steering[name[:-4]].add(t, math.degrees(v))
 
 

@@ -118,12 +118,15 @@ class Player:
 
 class Prefetch:
     """Reads samples ahead in a thread, so that decompressing the next chunk of the file
-    happens while the player waits, not when the next sample is due."""
+    happens while the player waits, not when the next sample is due. The first sample
+    is handed out once the read-ahead is full (or the file read), so that the reading
+    does not compete with the first seconds of playing."""
 
     _END = object()
 
     def __init__(self, messages: Iterable[Recorded], depth: int = 20000):
         self._queue: queue.Queue = queue.Queue(maxsize=depth)
+        self._primed = threading.Event()
         self._closed = threading.Event()
         self._thread = threading.Thread(target=self._read, args=(messages,), name="replay-read",
                                         daemon=True)
@@ -137,8 +140,15 @@ class Prefetch:
             self._offer(self._END)
         except BaseException as exc:            # handed to the player, raised there
             self._offer(exc)
+        finally:
+            self._primed.set()
 
     def _offer(self, item) -> bool:
+        try:
+            self._queue.put_nowait(item)
+            return True
+        except queue.Full:
+            self._primed.set()
         while not self._closed.is_set():
             try:
                 self._queue.put(item, timeout=0.1)
@@ -149,6 +159,7 @@ class Prefetch:
 
     def __iter__(self):
         try:
+            self._primed.wait()
             while True:
                 item = self._queue.get()
                 if item is self._END:

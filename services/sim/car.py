@@ -61,6 +61,11 @@ class SimCar:
         """Let a steering twin drive the wheel angle (rad, positive left)."""
         self._wheel_source = fn
 
+    def start_clock(self, now_ns: int | None = None) -> None:
+        """Tie simulation time zero to `now_ns` (UTC): call when stepping really begins,
+        so truth times agree with the wall clock the devices' clocks follow."""
+        self._t0_ns = (time.time_ns() if now_ns is None else int(now_ns)) - int(round(self._t * 1e9))
+
     # -- stepping -----------------------------------------------------------------------
     def step(self, dt: float) -> Truth:
         p = self.params

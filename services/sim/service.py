@@ -59,6 +59,7 @@ class SimService(Service):
     def _loop(self) -> None:
         """Fixed-rate stepping on absolute deadlines, so the rate does not drift."""
         dt = 1.0 / self.settings["rate_hz"]
+        self.car.start_clock(time.time_ns() - int(dt * 1e9))   # the first step ends now
         next_t = time.monotonic()
         while not self.stopping.is_set():
             truth = self.car.step(dt)

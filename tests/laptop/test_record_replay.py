@@ -1,0 +1,167 @@
+"""`viena record` and `viena replay` against the real simulated car, through real routers."""
+from __future__ import annotations
+
+import queue
+import signal
+import time
+
+import msgpack
+import pytest
+from mcap.reader import make_reader
+
+from vienatest import Processes, free_port, wait_for_port
+from laptop_helpers import (SIM_HEALTH_KEY, TRUTH_KEY, VIENA, start_sim, viena,
+                            wait_for_line, wait_for_samples)
+from viena.recording import Recording
+
+
+def start_router(procs) -> str:
+    port = free_port()
+    procs.python("-m", "viena.router", "--listen", f"tcp/127.0.0.1:{port}", "--log-level", "WARNING")
+    wait_for_port(port)
+    return f"tcp/127.0.0.1:{port}"
+
+
+def open_session(router):
+    import zenoh
+
+    from viena.common.config import load_zenoh_config
+    return zenoh.open(load_zenoh_config(mode="client", connect=[router]))
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    """Three seconds of the simulated car, recorded by `viena record` and stopped with
+    Ctrl-C (SIGINT); plus a fresh router with nothing on it, for replays."""
+    procs = Processes()
+    tmp = tmp_path_factory.mktemp("drive")
+    try:
+        router = start_router(procs)
+        start_sim(procs, router, tmp)
+        with open_session(router) as session:
+            wait_for_samples(session, SIM_HEALTH_KEY)        # the sim is up for a second
+        out = tmp / "drive.mcap"
+        rec = procs.start(*VIENA, "record", "--connect", router, "-o", out, "-q")
+        wait_for_line(rec.stderr, "recording viena/**")
+        time.sleep(3.0)
+        rec.send_signal(signal.SIGINT)
+        _, err = rec.communicate(timeout=20)
+        assert rec.returncode == 0, err
+        yield out, err, start_router(procs)
+    finally:
+        procs.stop_all()
+
+
+def test_record_keeps_every_sample_the_sim_counts(drive):
+    out, err, _ = drive
+    assert "recorded" in err and str(out) in err
+    assert out.exists() and not out.with_name("drive.mcap.part").exists()
+
+    recording = Recording(out)
+    samples = list(recording.messages())
+    assert recording.complete and recording.report() == []
+    truth = [msgpack.unpackb(m.data) for m in samples if m.key == TRUTH_KEY]
+    health = [msgpack.unpackb(m.data) for m in samples if m.key == SIM_HEALTH_KEY]
+    assert len(health) >= 2
+    seqs = [s["seq"] for s in truth]
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), "a truth sample was lost"
+    # The sim's own counter: every truth sample it had published when it sent its last
+    # health, from the first one the recorder heard, is in the file.
+    published = health[-1]["counts"]["truth"]
+    assert published >= seqs[0]
+    assert set(range(seqs[0], published + 1)) <= set(seqs)
+    assert health[-1]["errors"] == {}
+
+    for m in samples:
+        assert m.publish_time == msgpack.unpackb(m.data)["t"]
+    log_times = [m.log_time for m in samples]
+    assert log_times == sorted(log_times)
+
+
+def test_record_file_is_a_standard_mcap(drive):
+    out, _, _ = drive
+    with open(out, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        channels = {c.topic: c for c in summary.channels.values()}
+        schemas = {s.id: s.name for s in summary.schemas.values()}
+        assert channels[TRUTH_KEY].message_encoding == "msgpack"
+        assert schemas[channels[TRUTH_KEY].schema_id] == "viena.sim.truth/1"
+        assert schemas[channels[SIM_HEALTH_KEY].schema_id] == "viena.health/1"
+        assert channels[TRUTH_KEY].metadata["zenoh_encoding"] == "application/msgpack;viena.sim.truth/1"
+        n = sum(1 for _ in reader.iter_messages())
+    assert n == summary.statistics.message_count > 100
+
+
+def listen(session, keyexpr):
+    got: queue.Queue = queue.Queue()
+    sub = session.declare_subscriber(
+        keyexpr, lambda s: got.put((str(s.key_expr), s.payload.to_bytes(), str(s.encoding),
+                                    time.monotonic())))
+    return sub, got
+
+
+def drain(got: queue.Queue) -> list:
+    out = []
+    while not got.empty():
+        out.append(got.get())
+    return out
+
+
+@pytest.mark.parametrize("rate", [1.0, 4.0])
+def test_replay_reproduces_the_recording_with_its_timing(drive, rate):
+    out, _, fresh = drive                            # no sim there: only what replay sends
+    recorded = list(Recording(out).messages())
+    with open_session(fresh) as s:
+        sub, got = listen(s, "viena/**")
+        time.sleep(0.5)
+        result = viena("replay", out, "--connect", fresh, "--rate", rate)
+        time.sleep(0.5)
+        sub.undeclare()
+    assert result.returncode == 0, result.stderr
+    replayed = drain(got)
+    assert [(k, p, e) for k, p, e, _ in replayed] == [(m.key, m.data, m.encoding) for m in recorded]
+
+    # Timing: replay never publishes a sample before its time, so the replayed span is at
+    # least the recorded one (divided by the rate); an upper bound only guards against
+    # gross errors (this machine is shared).
+    recorded_span = (recorded[-1].log_time - recorded[0].log_time) / 1e9 / rate
+    replayed_span = replayed[-1][3] - replayed[0][3]
+    assert replayed_span >= recorded_span * 0.98
+    assert replayed_span < recorded_span + 1.5
+
+
+def test_replay_renames_the_car_and_filters_keys(drive):
+    out, _, fresh = drive
+    health = [m for m in Recording(out).messages() if m.key == SIM_HEALTH_KEY]
+    with open_session(fresh) as s:
+        sub, got = listen(s, "viena/**")
+        time.sleep(0.5)
+        result = viena("replay", out, "--connect", fresh, "--rate", 0, "--car", "twin",
+                       "--keys", "viena/elettra/*/health")
+        time.sleep(0.5)
+        sub.undeclare()
+    assert result.returncode == 0, result.stderr
+    replayed = drain(got)
+    assert [k for k, *_ in replayed] == ["viena/twin/sim/health"] * len(health)
+    assert [p for _, p, *_ in replayed] == [m.data for m in health]
+
+
+def test_replay_loop_plays_again_until_stopped(procs, drive):
+    out, _, fresh = drive
+    n = sum(1 for m in Recording(out).messages() if m.key == TRUTH_KEY)
+    with open_session(fresh) as s:
+        sub, got = listen(s, TRUTH_KEY)
+        time.sleep(0.5)
+        player = procs.start(*VIENA, "replay", out, "--connect", fresh, "--rate", 10, "--loop")
+        end = time.monotonic() + 20
+        while got.qsize() < 2 * n + 1 and time.monotonic() < end:
+            time.sleep(0.05)
+        player.send_signal(signal.SIGINT)
+        _, err = player.communicate(timeout=10)
+        sub.undeclare()
+    payloads = [p for _, p, *_ in drain(got)]
+    assert len(payloads) > 2 * n
+    assert payloads[n:2 * n] == payloads[:n]
+    assert player.returncode == 0, err
+    assert "passes" in err
