@@ -7,6 +7,7 @@ import bisect
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from vienatest import collect
 from viena.common.config import load_zenoh_config
 from viena.common.health import HEALTH
 from viena.common.rotation import quat_to_matrix
+from viena.services.estimator.state import STATE
 from viena.services.gnss.fix import FIX
 from viena.services.imu.sample import SAMPLE as IMU_SAMPLE
 from viena.services.sim.truth import TRUTH
@@ -105,3 +107,28 @@ def test_imu_samples_agree_with_truth(car):
     # calibrated, in the body frame, SI: the mean error is the sensors' residual bias
     assert np.all(np.abs(np.mean(diffs_f, axis=0)) < 0.3)        # m/s^2
     assert np.all(np.abs(np.mean(diffs_w, axis=0)) < 0.02)       # rad/s
+
+
+def test_estimator_state_tracks_truth(car):
+    truths, sub = truth_recorder(car)
+    try:
+        # past alignment: the car is parked 10 s, then drives
+        end = time.monotonic() + 90.0
+        states = []
+        while time.monotonic() < end:
+            states = collect(car, "viena/elettra/estimator/state", 20, timeout=10, decode=STATE.decode)
+            if states and states[-1]["position_valid"] and states[-1]["aligned"]:
+                break
+        states = collect(car, "viena/elettra/estimator/state", 80, timeout=20, decode=STATE.decode)
+    finally:
+        sub.undeclare()
+    assert len(states) == 80
+    errors = []
+    for s in states:
+        t = nearest(truths, s["t"])
+        if t is None:
+            continue
+        assert all(np.isfinite(s["enu_m"])) and all(np.isfinite(s["quat"]))
+        errors.append(np.linalg.norm(np.array(s["enu_m"][:2]) - np.array(t["enu_m"][:2])))
+    assert len(errors) > 50
+    assert np.median(errors) < 3.0

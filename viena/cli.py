@@ -2,6 +2,7 @@
 
     viena up [--profile sim] [-d]     start a profile under supervisor (Ctrl-C stops it)
     viena status | logs NAME | down   look after a running profile
+    viena update                      apply edits of a running profile (a moved program)
     viena sub [KEYEXPR]               print samples, one per line
     viena router                      a zenoh router (for machines without zenohd)
     viena bench [NAME ...]            print the benchmark figures
@@ -58,6 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = cmds.add_parser("down", help="stop a running profile and everything in it")
     _profile_arg(p, None)
     p.set_defaults(func=lambda a: compose.down(_running_profile(a)))
+
+    p = cmds.add_parser("update", help="apply edits of a running profile's files")
+    _profile_arg(p, None)
+    p.set_defaults(func=lambda a: compose.update(_running_profile(a)))
 
     p = cmds.add_parser("status", help="what runs in a profile")
     _profile_arg(p, None)

@@ -186,6 +186,15 @@ def logs(profile: str, program: str, follow: bool = False) -> int:
     return 0
 
 
+def update(profile: str) -> int:
+    """Apply edits of a running profile (a program moved in or out): supervisord re-reads
+    its files, starts what was added, stops what was removed, leaves the rest running."""
+    if not supervisord_pid(profile):
+        raise ComposeError(f"profile '{profile}' is not up")
+    done = ctl(profile, "update")
+    return done.returncode or wait_running(profile)
+
+
 def down(profile: str, timeout: float = 15.0) -> int:
     pid = supervisord_pid(profile)
     if pid is None:

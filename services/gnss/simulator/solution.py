@@ -95,7 +95,8 @@ class TruthSolver:
     """Solutions from the simulated car's truth at an antenna's lever arm (body frame).
 
     ``solve(gps_ms, utc_ns)`` must be called with non-decreasing epochs; the truth is
-    moved to the epoch with its own velocity (it is at most one sim step old).
+    moved to the epoch with its own velocity (it is at most one sim step old), and the
+    velocity is reported as the receiver measures it: as of its latency before the epoch.
     """
 
     def __init__(self, truth: Callable, lever_arm_m=(0.0, 0.0, 0.0), *,
@@ -132,7 +133,10 @@ class TruthSolver:
         lat0, lon0, h0 = truth.origin
         ecef = np.array(pymap3d.enu2ecef(*enu, lat0, lon0, h0), float)
         ecef += _rotate_enu_to_ecef(err_pos, lat0, lon0)
-        vel = _rotate_enu_to_ecef(vel_enu + err_vel, lat0, lon0)
+        # a Doppler velocity is DOPPLER_LATENCY_S old at its time tag (vol. 2, BESTVEL:
+        # "subtract from the time"), so it is the velocity of that earlier instant
+        vel_then = vel_enu + truth.accel_enu_mps2 * (dt - DOPPLER_LATENCY_S)
+        vel = _rotate_enu_to_ecef(vel_then + err_vel, lat0, lon0)
         sol = Solution(
             gps_ms, SolutionStatus.SOL_COMPUTED, self.pos_type, tuple(map(float, ecef)),
             _sigma_ecef(self.errors.sigma_enu, lat0, lon0), SolutionStatus.SOL_COMPUTED,

@@ -1,0 +1,138 @@
+"""viena-estimator: the car's state from its IMU and GNSS samples, on zenoh.
+
+    viena-estimator [--imu-key imu/razor0/sample] [--gnss-key 'gnss/*/fix'] [--origin LAT LON H]
+
+Subscribes to viena.imu.sample/1 and viena.gnss.fix/1 samples (key expressions relative to
+viena/<car>/, settings `imu_key` and `gnss_key`), feeds them to `Estimator` on one worker
+thread, and publishes viena.estimator.state/1 on viena/<car>/estimator/state after every
+IMU sample it uses (after every fix when there is no IMU). A waypoint put on
+viena/<car>/estimator/waypoint as {"lat": .., "lon": ..} (msgpack or JSON text; {} clears
+it) adds bearing, distance and heading error to the state. Thin on purpose: everything
+the estimator does is in estimator.py and runs the same offline.
+"""
+from __future__ import annotations
+
+import argparse
+import queue
+import threading
+import time
+
+from viena.common.errors import ConfigError, InputError
+from viena.common.payload import parse_payload
+from viena.common.schema import unpack
+from viena.common.service import Service, run_service
+from viena.services.estimator.estimator import DEFAULTS, Estimator
+from viena.services.estimator.navigation import waypoint_from
+from viena.services.estimator.state import STATE
+
+SERVICE_DEFAULTS = {
+    "imu_key": "imu/*/sample",          # relative to viena/<car>/; one IMU unit is used
+    "gnss_key": "gnss/*/fix",           # one or two receivers
+    "queue_size": 2000,                 # samples waiting for the worker (~10 s of input)
+}
+
+
+class EstimatorService(Service):
+    """Attitude, position and velocity of the car from its IMU and GNSS receivers."""
+
+    name = "estimator"
+    settings_defaults = {**SERVICE_DEFAULTS, **DEFAULTS}
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        g = parser.add_argument_group("estimator")
+        g.add_argument("--imu-key", dest="imu_key", metavar="KEYEXPR",
+                       help=f"IMU samples, relative to viena/<car>/ (default {SERVICE_DEFAULTS['imu_key']})")
+        g.add_argument("--gnss-key", dest="gnss_key", metavar="KEYEXPR",
+                       help=f"GNSS fixes, relative to viena/<car>/ (default {SERVICE_DEFAULTS['gnss_key']})")
+        g.add_argument("--origin", nargs=3, type=float, metavar=("LAT", "LON", "H"),
+                       help="ENU origin, degrees and ellipsoidal metres (default: the first good fix)")
+
+    def start(self) -> None:
+        s = self.settings
+        try:
+            self.estimator = Estimator({k: s[k] for k in DEFAULTS}, clock=time.time_ns, log=self.log)
+        except ValueError as exc:
+            raise ConfigError(f"[estimator]: {exc}") from None
+        self._queue: queue.Queue = queue.Queue(maxsize=max(10, s["queue_size"]))
+        self.state_pub = self.publisher(self.keys.key("estimator", "state"), STATE)
+        imu_key, gnss_key = self.keys.key(s["imu_key"]), self.keys.key(s["gnss_key"])
+        self.declare_subscriber(imu_key, lambda sample: self._enqueue("imu", sample))
+        self.declare_subscriber(gnss_key, lambda sample: self._enqueue("gnss", sample))
+        self.declare_subscriber(self.keys.key("estimator", "waypoint"),
+                                lambda sample: self._enqueue("waypoint", sample))
+        self.log.info("estimating from %s and %s", imu_key, gnss_key)
+        self._last_health = 0.0
+        self._thread = threading.Thread(target=self._run, name="estimator", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self.stopping.set()
+        thread = getattr(self, "_thread", None)
+        if thread is not None:
+            thread.join(timeout=1.0)
+
+    # -- zenoh callbacks: never block -----------------------------------------------------------
+    def _enqueue(self, kind: str, sample) -> None:
+        try:
+            self._queue.put_nowait((kind, sample.payload.to_bytes(), str(sample.encoding)))
+        except queue.Full:
+            self.health.error("queue_full")
+
+    # -- the worker -----------------------------------------------------------------------------
+    def _run(self) -> None:
+        while not self.stopping.is_set():
+            try:
+                kind, payload, encoding = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            try:
+                self._handle(kind, payload, encoding)
+            except Exception:                    # noqa: BLE001 - the worker must survive anything
+                self.health.error("internal")
+                self.log.exception("estimator failed on a %s sample", kind)
+
+    def _handle(self, kind: str, payload: bytes, encoding: str) -> None:
+        est = self.estimator
+        if kind == "waypoint":
+            try:
+                waypoint = waypoint_from(parse_payload(payload, encoding))
+            except (InputError, ValueError) as exc:
+                self.health.error("bad_waypoint")
+                self.log.warning("waypoint refused: %s", exc)
+                return
+            est.set_waypoint(waypoint)
+            self.log.info("waypoint %s", "cleared" if waypoint is None else
+                          f"lat {waypoint[0]:.7f} lon {waypoint[1]:.7f}")
+            return
+        try:
+            sample = unpack(payload, kind)
+        except InputError:
+            self.health.error(f"bad_{kind}_payload")
+            return
+        self.health.count(kind)
+        if kind == "imu":
+            if est.add_imu(sample):
+                self.health.mark_sample()
+                self._publish()
+        elif est.add_gnss(sample) and not est.imu_live:
+            self._publish()
+
+    def _publish(self) -> None:
+        state = self.estimator.state()
+        if self.state_pub.put(state):
+            self.health.count("state")
+        now = time.monotonic()
+        if now - self._last_health >= 1.0:
+            self._last_health = now
+            for name in ("mode", "heading_source", "gnss_live", "gnss_used", "gnss_rejected",
+                         "input_rejected", "last_reset"):
+                self.health.set(name, state[name])
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_service(EstimatorService, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

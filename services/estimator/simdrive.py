@@ -1,0 +1,218 @@
+"""An offline drive: the simulated car's truth with IMU samples and GNSS fixes made from it.
+
+For closed-loop tests and the benchmark, without processes or sockets: `SimCar` (the
+kinematic bicycle model the whole simulation uses) steps once per IMU period, and each
+sensor turns its truth into a sample dict in the agreed schema. Two sets of sensors:
+
+- "twins" (default): the device twins' own models -- `RazorBoard` (seed §5.5 sensor
+  models with the parked recordings' noise, through the IMU service's calibration and
+  sample builder) and the NovAtel `TruthSolver` (seed table 5.2 error sources as
+  Gauss-Markov processes scaled to 1.8 m CEP, satellites and outages, through the GNSS
+  service's BESTXYZ-to-fix code). What the car's processes see, minus the bytes.
+- "white": independent white errors of the same sizes (1.5 m per axis, 0.05 m/s, the
+  Razor's noise and quantisation). No filter can remove a slowly drifting GNSS error
+  without another reference, so this set shows what the filter does remove.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Iterator
+
+import numpy as np
+import pymap3d
+
+from viena.services.gnss.driver.gpstime import utc_to_gps
+from viena.services.sim.car import CarParams, SimCar
+from viena.services.sim.truth import Truth
+
+G = 9.80665
+T0_NS = 1_717_236_000_000_000_000           # 2024-06-01 10:00:00 UTC, a whole GPS second
+
+
+@dataclass
+class Drive:
+    duration_s: float = 300.0
+    seed: int = 1
+    sensors: str = "twins"              # "twins" or "white"
+    car: CarParams = field(default_factory=CarParams)
+    imu_rate_hz: float = 82.5           # the Razor firmware's loop (measured on the car)
+    gnss_rate_hz: float = 20.0          # BESTXYZ ONTIME 0.05
+    lever_arm_m: tuple = (0.0, 1.0, 1.5)
+    with_mag: bool = True
+    outages: tuple = ()                 # (start_s, end_s): the receiver has no solution
+    random_outages: bool = False        # the twin's own short outages (as in the 2016 drive)
+
+
+class DriveSamples:
+    """Iterate the drive's samples in acquisition-time order:
+    ("imu", sample, Truth at the sample) and ("gnss", fix, true antenna ENU position).
+
+    The car steps once per IMU period, so each IMU sample carries the car's acceleration and
+    turn rate over exactly the interval since the previous one, as an integrating IMU would.
+    GNSS epochs fall between steps; their truth is interpolated.
+    """
+
+    def __init__(self, drive: Drive | None = None):
+        self.drive = d = drive or Drive()
+        self.rng = np.random.default_rng(d.seed)
+        self.car = SimCar(d.car, start_time_ns=T0_NS)
+        self.origin = self.car.origin
+        if d.sensors == "twins":
+            self.sensors = TwinSensors(d, self.rng, self.car.truth)
+        elif d.sensors == "white":
+            self.sensors = WhiteSensors(d, self.rng, self.origin)
+        else:
+            raise ValueError(f"sensors {d.sensors!r}: twins or white")
+
+    def __iter__(self) -> Iterator[tuple[str, dict, object]]:
+        d = self.drive
+        imu_dt = 1.0 / d.imu_rate_hz
+        gnss_ns = int(round(1e9 / d.gnss_rate_hz))
+        recent: deque[Truth] = deque([self.car.truth()], maxlen=64)
+        n_imu = n_gnss = 0
+        while True:
+            n_imu += 1
+            if n_imu * imu_dt > d.duration_s:
+                return
+            truth = self.car.step(imu_dt)
+            recent.append(truth)
+            while T0_NS + (n_gnss + 1) * gnss_ns <= truth.t_ns:
+                n_gnss += 1
+                t_ns = T0_NS + n_gnss * gnss_ns
+                fix = self.sensors.gnss(t_ns, recent, n_gnss)
+                yield "gnss", fix, _interpolate(recent, t_ns, d.lever_arm_m)[0]
+            yield "imu", self.sensors.imu(truth, n_imu), truth
+
+
+class TwinSensors:
+    """The IMU and GNSS twins' error models, through the services' own sample code."""
+
+    def __init__(self, drive: Drive, rng, truth_fn):
+        from viena.services.gnss.driver.novatel.enums import MessageId, TimeStatus
+        from viena.services.gnss.driver.novatel.framing import Header
+        from viena.services.gnss.driver.novatel.logs import LogMessage
+        from viena.services.gnss.fix import fix_from_bestxyz
+        from viena.services.gnss.simulator.errors import GnssErrorModel, SkyModel
+        from viena.services.gnss.simulator.novatel_twin import bestxyz_of
+        from viena.services.gnss.simulator.solution import TruthSolver
+        from viena.services.imu.calibration import SampleCalibrator, seed_calibration
+        from viena.services.imu.driver import Frame, Reading
+        from viena.services.imu.sample import SampleBuilder
+        from viena.services.imu.simulator import RazorBoard
+
+        self.drive, self.rng = drive, rng
+        self.board = RazorBoard()
+        self.builder = SampleBuilder("imu0", "viena", SampleCalibrator(seed_calibration("viena")))
+        self._frame, self._reading = Frame, Reading
+        sky = SkyModel(rng, outages=tuple((a, b) for a, b in drive.outages),
+                       outage_interval_s=64.0 if drive.random_outages else 0.0)
+        self.solver = TruthSolver(truth_fn, drive.lever_arm_m, errors=GnssErrorModel(rng), sky=sky)
+        self._header, self._log, self._fix, self._bestxyz = Header, LogMessage, fix_from_bestxyz, bestxyz_of
+        self._ids = (MessageId.BESTXYZ, TimeStatus.FINESTEERING)
+
+    def imu(self, truth: Truth, seq: int) -> dict:
+        m = self.board.measure(truth, self.rng)
+        frame = self._frame(self.board.board_id, m.accel_g, m.gyro_dps, m.mag_counts, m.euler_deg)
+        sample = self.builder.build(self._reading(truth.t_ns, truth.t_ns, seq, frame))
+        if not self.drive.with_mag:
+            sample["mag_T"] = None
+        return sample
+
+    def gnss(self, t_ns: int, recent, seq: int) -> dict:
+        week, ms = utc_to_gps(t_ns)
+        solution = self.solver.solve(week * 604_800_000 + ms, t_ns)
+        header = self._header(self._ids[0], week=week, milliseconds=ms, time_status=self._ids[1])
+        fix = self._fix(self._log(header, self._bestxyz(solution), t_ns + 50_000_000), "gnss0", seq)
+        # The twin's velocity is the truth at the epoch itself, while it reports the
+        # OEM4's Doppler latency (0.15 s): say what it is, not what a receiver would have.
+        fix["vel_latency_s"] = 0.0
+        return fix
+
+
+class WhiteSensors:
+    """White errors of the seed's sizes, independent from sample to sample."""
+
+    accel_sigma = 0.006 * G
+    accel_bias_sigma = 0.003 * G
+    accel_lsb = 0.0039 * G
+    gyro_sigma = math.radians(0.035)
+    gyro_bias_sigma = math.radians(0.03)
+    gyro_lsb = math.radians(1 / 14.375)
+    mag_sigma_T = 0.3e-6
+    pos_sigma_m = 1.5                   # per ECEF axis: 1.8 m CEP
+    vel_sigma_mps = 0.05
+    vel_latency_s = 0.025
+
+    def __init__(self, drive: Drive, rng, origin):
+        self.drive, self.rng, self.origin = drive, rng, origin
+        self.accel_bias = rng.normal(0.0, self.accel_bias_sigma, 3)
+        self.gyro_bias = rng.normal(0.0, self.gyro_bias_sigma, 3)
+
+    def imu(self, truth: Truth, seq: int) -> dict:
+        rng = self.rng
+        acc = truth.specific_force_body_mps2 + self.accel_bias + rng.normal(0.0, self.accel_sigma, 3)
+        acc = np.round(acc / self.accel_lsb) * self.accel_lsb
+        gyr = truth.gyro_body_radps + self.gyro_bias + rng.normal(0.0, self.gyro_sigma, 3)
+        gyr = np.round(gyr / self.gyro_lsb) * self.gyro_lsb
+        mag = None
+        if self.drive.with_mag:
+            mag = [float(v) for v in truth.mag_body_T() + rng.normal(0.0, self.mag_sigma_T, 3)]
+        return {
+            "t": truth.t_ns, "seq": seq, "unit": "imu0", "firmware": "viena",
+            "accel_mps2": [float(v) for v in acc], "gyro_radps": [float(v) for v in gyr],
+            "mag_T": mag,
+            "raw": {"accel_g": [float(v) / G for v in acc],
+                    "gyro_dps": [math.degrees(v) for v in gyr],
+                    "mag_counts": [0.0, 0.0, 0.0], "euler_deg": None},
+            "board_id": 1,
+        }
+
+    def gnss(self, t_ns: int, recent, seq: int) -> dict:
+        week, ms = utc_to_gps(t_ns)
+        arm = self.drive.lever_arm_m
+        fix = {
+            "t": t_ns, "seq": seq, "unit": "gnss0", "protocol": "novatel",
+            "gps_week": week, "gps_ms": ms, "t_host": t_ns + 50_000_000, "latency_s": 0.05,
+            "vel_latency_s": self.vel_latency_s, "diff_age_s": 0.0, "sol_age_s": 0.0,
+            "sats_tracked": 9, "sats_used": 8,
+        }
+        t_s = (t_ns - T0_NS) * 1e-9
+        if any(a <= t_s < b for a, b in self.drive.outages):
+            fix.update(valid=False, pos_status="INSUFFICIENT_OBS", pos_type="NONE",
+                       vel_status="INSUFFICIENT_OBS", vel_type="NONE",
+                       ecef_m=[100.0, 0.0, 0.0], ecef_sigma_m=[0.0, 0.0, 0.0],
+                       vel_ecef_mps=[0.0, 0.0, 0.0], vel_sigma_mps=[0.0, 0.0, 0.0],
+                       lat_deg=0.0, lon_deg=0.0, height_m=0.0, sats_used=0)
+            return fix
+        pos, _ = _interpolate(recent, t_ns, arm)
+        _, vel = _interpolate(recent, t_ns - int(self.vel_latency_s * 1e9), arm)
+        lat0, lon0, h0 = self.origin
+        ecef = np.array(pymap3d.enu2ecef(*pos, lat0, lon0, h0), float)
+        ecef += self.rng.normal(0.0, self.pos_sigma_m, 3)
+        v = np.array(pymap3d.enu2uvw(*vel, lat0, lon0), float) + self.rng.normal(0.0, self.vel_sigma_mps, 3)
+        lat, lon, h = pymap3d.ecef2geodetic(*ecef)
+        fix.update(valid=True, pos_status="SOL_COMPUTED", pos_type="SINGLE",
+                   vel_status="SOL_COMPUTED", vel_type="DOPPLER_VELOCITY",
+                   ecef_m=[float(x) for x in ecef], ecef_sigma_m=[self.pos_sigma_m] * 3,
+                   vel_ecef_mps=[float(x) for x in v], vel_sigma_mps=[self.vel_sigma_mps] * 3,
+                   lat_deg=float(lat), lon_deg=float(lon), height_m=float(h))
+        return fix
+
+
+def _interpolate(recent, t_ns: int, arm) -> tuple[np.ndarray, np.ndarray]:
+    """ENU position and velocity of a body point at t_ns, between the two nearest steps."""
+    later = None
+    for truth in reversed(recent):
+        if truth.t_ns <= t_ns:
+            earlier = truth
+            break
+        later = truth
+    else:
+        raise ValueError(f"no truth as old as {t_ns} ns")
+    if later is None:
+        return earlier.enu_of(arm), earlier.vel_enu_of(arm)
+    f = (t_ns - earlier.t_ns) / (later.t_ns - earlier.t_ns)
+    return ((1 - f) * earlier.enu_of(arm) + f * later.enu_of(arm),
+            (1 - f) * earlier.vel_enu_of(arm) + f * later.vel_enu_of(arm))

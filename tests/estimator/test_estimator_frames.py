@@ -1,0 +1,218 @@
+"""Frames and conventions against the seed's equations (ch. 5), pymap3d and the car.
+
+Seed eq. 5.2 is written out here with its first-row typo fixed ([-sin lon, cos lon, 0]),
+eqs. 5.4, 5.8 and 5.10 as printed, and each is checked against what the estimator uses.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pymap3d
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from viena.common.rotation import (euler_from_quat, euler_to_matrix, quat_from_euler,
+                                   quat_multiply, quat_to_matrix)
+from viena.services.estimator.geodesy import LocalFrame
+from viena.services.estimator.heading import course_yaw
+from viena.services.estimator.madgwick import attitude_from_vectors
+from viena.services.estimator.navigation import (bearing_distance, compass_heading_deg,
+                                                 heading_error_deg, normalize_deg,
+                                                 waypoint_from, waypoint_guidance)
+
+IST = (38.7369, -9.1395, 100.0)
+angles = st.floats(-math.pi, math.pi, allow_nan=False)
+tilts = st.floats(-1.4, 1.4, allow_nan=False)
+
+
+def seed_eq_5_2(lat_deg: float, lon_deg: float) -> np.ndarray:
+    """ECEF -> ENU rotation, seed eq. 5.2 (lambda = longitude, phi = latitude), typo fixed."""
+    lam, phi = math.radians(lon_deg), math.radians(lat_deg)
+    return np.array([
+        [-math.sin(lam), math.cos(lam), 0.0],            # the seed prints cos(phi) here
+        [-math.sin(phi) * math.cos(lam), -math.sin(phi) * math.sin(lam), math.cos(phi)],
+        [math.cos(phi) * math.cos(lam), math.cos(phi) * math.sin(lam), math.sin(phi)],
+    ])
+
+
+def seed_eq_5_4(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """^b_a R as printed: world -> body, the transpose of our body -> world."""
+    cy, sy, cp, sp, cr, sr = (math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch),
+                              math.cos(roll), math.sin(roll))
+    return np.array([
+        [cy * cp, sy * cp, -sp],
+        [cy * sp * sr - sy * cr, cy * cr + sy * sp * sr, cp * sr],
+        [sy * sr + cy * sp * cr, sy * sp * cr - cy * sr, cp * cr],
+    ])
+
+
+def seed_eq_5_8(a, b) -> np.ndarray:
+    a1, a2, a3, a4 = a
+    b1, b2, b3, b4 = b
+    return np.array([a1 * b1 - a2 * b2 - a3 * b3 - a4 * b4,
+                     a1 * b2 + a2 * b1 + a3 * b4 - a4 * b3,
+                     a1 * b3 - a2 * b4 + a3 * b1 + a4 * b2,
+                     a1 * b4 + a2 * b3 - a3 * b2 + a4 * b1])
+
+
+def conj(q):
+    return np.array([q[0], -q[1], -q[2], -q[3]])
+
+
+# -- ECEF and ENU (eq. 5.1, 5.2, table 5.1) -----------------------------------------------------
+@pytest.mark.parametrize("lat, lon", [IST[:2], (0.0, 0.0), (-33.9, 151.2), (64.1, -21.9), (38.7, 179.9)])
+def test_seed_eq_5_2_with_its_typo_fixed_is_pymap3d_rotation(lat, lon):
+    frame = LocalFrame(lat, lon, 50.0)
+    np.testing.assert_allclose(frame.rot_ecef_to_enu, seed_eq_5_2(lat, lon), atol=1e-12)
+    # ... and the printed first row is not a rotation at all
+    printed = seed_eq_5_2(lat, lon)
+    printed[0, 1] = math.cos(math.radians(lat))
+    assert abs(np.linalg.det(printed) - 1.0) > 1e-3 or lat == 0.0
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(-3000, 3000), st.floats(-3000, 3000), st.floats(-50, 50))
+def test_enu_of_ecef_is_pymap3d_to_the_millimetre(e, n, u):
+    frame = LocalFrame(*IST)
+    ecef = pymap3d.enu2ecef(e, n, u, *IST)
+    np.testing.assert_allclose(frame.enu_of_ecef(ecef), pymap3d.ecef2enu(*ecef, *IST), atol=1e-3)
+    np.testing.assert_allclose(frame.enu_of_ecef(ecef), (e, n, u), atol=1e-3)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.floats(-5000, 5000), st.floats(-5000, 5000), st.floats(-100, 100))
+def test_geodetic_of_enu_is_pymap3d_to_a_millimetre(e, n, u):
+    frame = LocalFrame(*IST)
+    lat, lon, h = frame.geodetic_of_enu(e, n, u)
+    lat2, lon2, h2 = pymap3d.enu2geodetic(e, n, u, *IST)
+    assert abs(lat - lat2) * 111_000 < 1e-3 and abs(lon - lon2) * 87_000 < 1e-3 and abs(h - h2) < 1e-3
+
+
+def test_first_fix_origin_and_the_lever_free_velocity_rotation():
+    frame = LocalFrame.at_ecef(pymap3d.geodetic2ecef(*IST))
+    np.testing.assert_allclose(frame.origin, IST, atol=1e-9)
+    east_ecef = pymap3d.enu2uvw(1.0, 0.0, 0.0, *IST[:2])
+    np.testing.assert_allclose(frame.vector_to_enu(east_ecef), (1, 0, 0), atol=1e-12)
+    cov = frame.cov_to_enu((2.0, 2.0, 2.0))
+    np.testing.assert_allclose(cov, np.eye(3) * 4.0, atol=1e-12)      # isotropic stays isotropic
+
+
+# -- rotations and quaternions (eq. 5.4, 5.8, 5.10) -----------------------------------------------
+@settings(max_examples=100, deadline=None)
+@given(angles, tilts, angles)
+def test_seed_eq_5_4_is_the_transpose_of_our_body_to_world(yaw, pitch, roll):
+    r = euler_to_matrix(yaw, pitch, roll)
+    np.testing.assert_allclose(seed_eq_5_4(yaw, pitch, roll), r.T, atol=1e-12)
+    np.testing.assert_allclose(quat_to_matrix(quat_from_euler(yaw, pitch, roll)), r, atol=1e-12)
+    np.testing.assert_allclose(euler_from_quat(quat_from_euler(yaw, pitch, roll)), (yaw, pitch, roll),
+                               atol=1e-9)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.floats(-2, 2), min_size=8, max_size=8))
+def test_seed_eq_5_8_is_the_hamilton_product(v):
+    a, b = np.array(v[:4]), np.array(v[4:])
+    np.testing.assert_allclose(quat_multiply(a, b), seed_eq_5_8(a, b), atol=1e-12)
+    assert seed_eq_5_8([0, 1, 0, 0], [0, 0, 1, 0]).tolist() == [0, 0, 0, 1]   # ij = k (eq. 5.7b)
+
+
+@settings(max_examples=100, deadline=None)
+@given(angles, tilts, angles, st.lists(st.floats(-10, 10), min_size=3, max_size=3))
+def test_seed_eq_5_10_rotates_vectors_as_the_matrix_does(yaw, pitch, roll, v):
+    q = quat_from_euler(yaw, pitch, roll)
+    rotated = seed_eq_5_8(seed_eq_5_8(q, [0.0, *v]), conj(q))
+    assert abs(rotated[0]) < 1e-9
+    np.testing.assert_allclose(rotated[1:], quat_to_matrix(q) @ v, atol=1e-9)
+    # eq. 5.10 read the other way round (q* v q) takes world vectors into the body
+    back = seed_eq_5_8(seed_eq_5_8(conj(q), [0.0, *rotated[1:]]), q)
+    np.testing.assert_allclose(back[1:], v, atol=1e-9)
+
+
+# -- the car's frame ----------------------------------------------------------------------------
+def test_at_yaw_zero_the_car_points_north_and_yaw_turns_it_left():
+    forward = np.array([0.0, 1.0, 0.0])                   # body y
+    np.testing.assert_allclose(euler_to_matrix(0, 0, 0) @ forward, (0, 1, 0), atol=1e-12)
+    np.testing.assert_allclose(euler_to_matrix(math.pi / 2, 0, 0) @ forward, (-1, 0, 0), atol=1e-12)
+    assert compass_heading_deg(math.pi / 2) == pytest.approx(-90.0)     # West
+    assert compass_heading_deg(-math.pi / 2) == pytest.approx(90.0)     # East
+    assert course_yaw(0.0, 5.0) == 0.0
+    assert course_yaw(-5.0, 0.0) == pytest.approx(math.pi / 2)
+    assert course_yaw(3.0, 0.0) == pytest.approx(-math.pi / 2)
+
+
+@settings(max_examples=100, deadline=None)
+@given(angles, st.floats(-0.5, 0.5), st.floats(-0.5, 0.5))
+def test_still_alignment_recovers_the_attitude(yaw, pitch, roll):
+    r = euler_to_matrix(yaw, pitch, roll)
+    field = np.array([-1121.5, 26479.8, -34884.7]) * 1e-9
+    declination = math.atan2(field[0], field[1])
+    q = attitude_from_vectors(r.T @ [0, 0, 9.8], r.T @ field, declination)
+    np.testing.assert_allclose(quat_to_matrix(q), r, atol=1e-9)
+    y, p, rr = euler_from_quat(attitude_from_vectors(r.T @ [0, 0, 9.8]))
+    assert (y, p, rr) == pytest.approx((0.0, pitch, roll), abs=1e-9)
+
+
+# -- navigation to a waypoint (Titans report) -----------------------------------------------------
+def titans_flat_bearing_distance(lat, lon, wp_lat, wp_lon):
+    """The report's way: metres per degree at this latitude, the angle to a point north."""
+    m_lat = 111_132.92 - 559.82 * math.cos(2 * math.radians(lat))
+    m_lon = 111_412.84 * math.cos(math.radians(lat)) - 93.5 * math.cos(3 * math.radians(lat))
+    a = np.array([(wp_lon - lon) * m_lon, (wp_lat - lat) * m_lat])
+    b = np.array([0.0, 1.0])
+    alpha = math.degrees(math.acos(a @ b / np.linalg.norm(a)))
+    return (alpha if a[0] >= 0 else -alpha), float(np.linalg.norm(a))
+
+
+@pytest.mark.parametrize("de, dn", [(30, 40), (-30, 40), (-10, -70), (60, -5), (0.0, 120), (-200, 0.1)])
+def test_bearing_and_distance_match_the_titans_method_at_short_range(de, dn):
+    wp = pymap3d.enu2geodetic(de, dn, 0.0, *IST)
+    bearing, distance = bearing_distance(IST[0], IST[1], wp[0], wp[1])
+    t_bearing, t_distance = titans_flat_bearing_distance(IST[0], IST[1], wp[0], wp[1])
+    assert bearing == pytest.approx(math.degrees(math.atan2(de, dn)), abs=0.01)
+    assert bearing == pytest.approx(t_bearing, abs=0.05)
+    assert distance == pytest.approx(math.hypot(de, dn), rel=1e-4)
+    assert distance == pytest.approx(t_distance, rel=2e-3)
+
+
+def test_bearing_and_distance_agree_with_pymap3d_far_away():
+    wp = (38.80, -9.05)                                    # ~11 km north-east
+    bearing, distance = bearing_distance(IST[0], IST[1], *wp)
+    az, _, rng = pymap3d.geodetic2aer(wp[0], wp[1], IST[2], *IST)
+    assert bearing == pytest.approx(normalize_deg(float(az)), abs=0.05)
+    assert distance == pytest.approx(float(rng), rel=1e-3)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(-1e4, 1e4), st.floats(-1e4, 1e4))
+def test_heading_error_is_normalised_to_plus_minus_180(bearing, heading):
+    err = heading_error_deg(bearing, heading)
+    assert -180.0 <= err < 180.0
+    assert math.isclose(math.cos(math.radians(err)), math.cos(math.radians(bearing - heading)), abs_tol=1e-6)
+
+
+def test_heading_error_says_which_way_to_turn():
+    north_east = pymap3d.enu2geodetic(50.0, 50.0, 0.0, *IST)
+    g = waypoint_guidance(IST[0], IST[1], 0.0, north_east[0], north_east[1], IST[2])
+    assert g["wp_bearing_deg"] == pytest.approx(45.0, abs=0.01)
+    assert g["wp_heading_error_deg"] == pytest.approx(45.0, abs=0.01)           # turn right
+    g = waypoint_guidance(IST[0], IST[1], math.radians(-90), north_east[0], north_east[1], IST[2])
+    assert g["wp_heading_error_deg"] == pytest.approx(-45.0, abs=0.01)         # facing east: left
+    g = waypoint_guidance(IST[0], IST[1], math.radians(170), north_east[0], north_east[1], IST[2])
+    assert g["wp_heading_error_deg"] == pytest.approx(-145.0, abs=0.01)
+
+
+@pytest.mark.parametrize("payload, expected", [
+    ({"lat": 38.7, "lon": -9.1}, (38.7, -9.1)), ({"lat": 1, "lon": 2}, (1.0, 2.0)),
+    ({}, None), ({"clear": True}, None)])
+def test_waypoint_payloads(payload, expected):
+    assert waypoint_from(payload) == expected
+
+
+@pytest.mark.parametrize("payload", [
+    {"lat": 91.0, "lon": 0.0}, {"lat": float("nan"), "lon": 0.0}, {"lat": "38", "lon": 0.0},
+    {"lat": 38.0}, {"lat": 38.0, "lon": 0.0, "alt": 3}, [38.0, -9.0], {"lat": True, "lon": 0.0}])
+def test_bad_waypoints_are_refused_with_a_reason(payload):
+    with pytest.raises(ValueError) as exc:
+        waypoint_from(payload)
+    assert str(exc.value)
