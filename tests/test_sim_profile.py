@@ -23,6 +23,8 @@ from viena.services.estimator.state import STATE
 from viena.services.gnss.fix import FIX
 from viena.services.imu.sample import SAMPLE as IMU_SAMPLE
 from viena.services.sim.truth import TRUTH
+from viena.services.steering.client import SteeringClient
+from viena.services.steering.state import STATE as STEERING
 
 VIENA = [sys.executable, "-m", "viena.cli"]
 LEVER_ARMS = {"gnss0": (-0.5, 1.0, 1.5), "gnss1": (0.5, 1.0, 1.5)}
@@ -132,3 +134,33 @@ def test_estimator_state_tracks_truth(car):
         errors.append(np.linalg.norm(np.array(s["enu_m"][:2]) - np.array(t["enu_m"][:2])))
     assert len(errors) > 50
     assert np.median(errors) < 3.0
+
+
+def test_steering_comes_up_calibrated_and_a_setpoint_turns_the_car(car):
+    end = time.monotonic() + 60
+    state = None
+    while time.monotonic() < end:                 # the twin sweeps lock to lock first
+        states = collect(car, "viena/elettra/steering/state", 1, timeout=5, decode=STEERING.decode)
+        state = states[-1] if states else None
+        if state and state["phase"] == "ready":
+            break
+        time.sleep(0.5)
+    assert state and state["phase"] == "ready" and not state["armed"], state
+    calibration = state["calibration"]
+    assert calibration["state"] == "done" and 90_000 <= calibration["span_qc"] <= 100_000, calibration
+
+    client = SteeringClient(car)
+    reply = client.arm()
+    assert reply["status"] == "accepted", reply
+    try:
+        truths, sub = truth_recorder(car)
+        try:
+            last = client.hold(10.0, seconds=3.0)
+        finally:
+            sub.undeclare()
+        assert last["status"] in ("accepted", "clamped"), last
+        wheel_deg = np.degrees(truths[-1]["wheel_angle_rad"])
+        assert abs(wheel_deg - 10.0) < 1.0, wheel_deg           # the simulated car turned
+        assert truths[-1]["gyro_radps"][2] > 0                   # to the left
+    finally:
+        assert client.disarm()["status"] == "accepted"

@@ -124,11 +124,8 @@ class TwinSensors:
         week, ms = utc_to_gps(t_ns)
         solution = self.solver.solve(week * 604_800_000 + ms, t_ns)
         header = self._header(self._ids[0], week=week, milliseconds=ms, time_status=self._ids[1])
-        fix = self._fix(self._log(header, self._bestxyz(solution), t_ns + 50_000_000), "gnss0", seq)
-        # The twin's velocity is the truth at the epoch itself, while it reports the
-        # OEM4's Doppler latency (0.15 s): say what it is, not what a receiver would have.
-        fix["vel_latency_s"] = 0.0
-        return fix
+        # the twin's velocity is as old as the Doppler latency it reports, like the OEM4's
+        return self._fix(self._log(header, self._bestxyz(solution), t_ns + 50_000_000), "gnss0", seq)
 
 
 class WhiteSensors:

@@ -66,6 +66,11 @@ class SimCar:
         so truth times agree with the wall clock the devices' clocks follow."""
         self._t0_ns = (time.time_ns() if now_ns is None else int(now_ns)) - int(round(self._t * 1e9))
 
+    def driver_wheel_angle(self) -> float:
+        """The wheel angle a person following the route would steer to now (rad): what
+        the steering twin's hands do while the drive does not hold the wheel."""
+        return self._pursuit_angle()
+
     # -- stepping -----------------------------------------------------------------------
     def step(self, dt: float) -> Truth:
         p = self.params

@@ -1,0 +1,66 @@
+"""The DS402 device control words as the EPOS uses them (firmware specification §8.1).
+
+The state names and statusword masks are canopen's (`canopen.profiles.p402.State402`), so
+the service, the twin and canopen's BaseNode402 speak of the same states. This module
+adds the EPOS statusword values and the controlword commands by name.
+"""
+from __future__ import annotations
+
+from canopen.profiles.p402 import State402
+
+NOT_READY = "NOT READY TO SWITCH ON"
+SWITCH_ON_DISABLED = "SWITCH ON DISABLED"
+READY = "READY TO SWITCH ON"
+SWITCHED_ON = "SWITCHED ON"
+OPERATION_ENABLED = "OPERATION ENABLED"
+QUICK_STOP_ACTIVE = "QUICK STOP ACTIVE"
+FAULT_REACTION = "FAULT REACTION ACTIVE"
+FAULT = "FAULT"
+UNKNOWN = "UNKNOWN"
+
+#: controlword commands (low byte; firmware specification table 3)
+CW_DISABLE_VOLTAGE = State402.CW_DISABLE_VOLTAGE      # 0x0000 -> switch on disabled
+CW_QUICK_STOP = State402.CW_QUICK_STOP                # 0x0002 -> quick stop active
+CW_SHUTDOWN = State402.CW_SHUTDOWN                    # 0x0006 -> ready to switch on
+CW_SWITCH_ON = State402.CW_SWITCH_ON                  # 0x0007 -> switched on
+CW_ENABLE_OPERATION = State402.CW_OPERATION_ENABLED   # 0x000F -> operation enabled
+CW_FAULT_RESET = 0x0080                               # bit 7; acts on its 0 -> 1 edge only
+
+#: statusword bits the EPOS sets besides the state (table 101)
+SW_VOLTAGE_ENABLED = 1 << 4
+SW_QUICK_STOP = 1 << 5            # 1 = no quick stop in progress
+SW_WARNING = 1 << 7
+SW_OFFSET_CURRENT_MEASURED = 1 << 8
+SW_REMOTE = 1 << 9                # NMT operational
+SW_TARGET_REACHED = 1 << 10
+SW_FOLLOWING_ERROR = 1 << 13
+
+#: the state bits of the statusword as the EPOS reports each state (table 1 and the
+#: values the original VIENA code read from the car's drive)
+EPOS_STATUSWORD = {
+    NOT_READY: 0x0000,
+    SWITCH_ON_DISABLED: 0x0140,
+    READY: 0x0121,
+    SWITCHED_ON: 0x0123,
+    OPERATION_ENABLED: 0x0137,
+    QUICK_STOP_ACTIVE: 0x0117,
+    FAULT_REACTION: 0x011F,
+    FAULT: 0x0108,
+}
+
+
+def state_of(statusword: int) -> str:
+    """The DS402 state a statusword reports (canopen's masks)."""
+    for state, (mask, bits) in State402.SW_MASK.items():
+        if statusword & mask == bits:
+            return state
+    return UNKNOWN
+
+
+def is_enabled(statusword: int) -> bool:
+    """Power applied and following setpoints."""
+    return state_of(statusword) == OPERATION_ENABLED
+
+
+def is_fault(statusword: int) -> bool:
+    return state_of(statusword) in (FAULT, FAULT_REACTION)

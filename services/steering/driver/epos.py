@@ -1,0 +1,393 @@
+"""The Maxon EPOS 70/10 on CANopen: configuration by SDO, setpoints by RPDO, feedback by
+TPDO on SYNC, heartbeats both ways, emergencies by name.
+
+    >>> drive = EposDrive(DriveSettings(interface="slcan", channel="socket://127.0.0.1:5005",
+    ...                                 bus_options={"sleep_after_open": 0}))
+    >>> drive.open(); drive.configure(limits_qc=None)
+    >>> drive.cycle()                      # call every sync_period_s: heartbeat, RPDO, SYNC
+    >>> drive.feedback().position_qc
+
+The drive runs in EPOS Position Mode (operation mode -1): the setpoint object 0x2062 is the
+position controller's demand directly, clipped by the software position limits 0x607D.
+Process data (all mapped at start, firmware specification §14.16-14.31):
+
+    RPDO1  0x200+id  asynchronous  controlword 0x6040 (u16), position setting 0x2062 (i32)
+    TPDO1  0x180+id  on SYNC       statusword 0x6041 (u16), position actual 0x6064 (i32)
+    TPDO2  0x280+id  on SYNC       following error 0x20F4 (i16), position demand 0x6062 (i32),
+                                   operation mode display 0x6061 (i8)
+
+The host sends its own heartbeat (0x700 + host node id) from the same loop that sends the
+setpoints, and configures the drive to consume it (0x1016): if the host process dies or its
+loop hangs, the drive faults by itself (CAN Life Guard Error) and stops the motor.
+
+This module imports neither zenoh nor msgpack; the state machine policy (when to enable,
+when to reset a fault) belongs to the caller.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import can
+import canopen
+from canopen.profiles.p402 import BaseNode402
+
+from viena.services.steering.driver import ds402
+from viena.services.steering.driver.emcy import Emcy
+
+log = logging.getLogger(__name__)
+
+#: the corrected EDS shipped with this package (see the comment at its top)
+EDS_PATH = Path(__file__).resolve().parents[1] / "maxon-70_10.eds"
+
+POSITION_MODE = -1
+LIMIT_DISABLED = (-(2 ** 31), 2 ** 31 - 1)          # 0x607D values that switch the check off
+NMT_OPERATIONAL = 0x05
+NMT_BOOTUP = 0x00
+
+
+class DriveError(Exception):
+    """The drive did not do what was asked (an SDO abort, a timeout, a wrong read-back)."""
+
+
+@dataclass
+class DriveSettings:
+    interface: str = "socketcan"
+    channel: str = "can0"
+    bitrate: int = 1_000_000
+    node_id: int = 1
+    #: node id the host's heartbeat is sent with (0x700 + id); the drive consumes it
+    host_node_id: int = 100
+    sync_period_s: float = 0.01
+    #: drive heartbeat period (0x1017) and how long the host waits before calling it lost
+    drive_heartbeat_period_s: float = 0.1
+    drive_heartbeat_timeout_s: float = 0.35
+    #: host heartbeat period and how long the drive waits before faulting (0x1016)
+    host_heartbeat_period_s: float = 0.05
+    host_heartbeat_timeout_s: float = 0.25
+    #: sensor configuration 0x2210: HEDR-55L2 3600 pulses, type 2 = without index (the
+    #: index track of the car's encoder is damaged), polarity 0
+    encoder_pulses: int = 3600
+    sensor_type: int = 2
+    sensor_polarity: int = 0
+    max_following_error_qc: int = 7500
+    sdo_timeout_s: float = 0.3
+    #: extra python-can arguments, e.g. {"sleep_after_open": 0} for an slcan socket
+    bus_options: dict = field(default_factory=dict)
+    eds: str = str(EDS_PATH)
+
+
+@dataclass(frozen=True)
+class Feedback:
+    """What the drive reported on the last SYNC (TPDO1 and TPDO2)."""
+    statusword: int = 0
+    position_qc: int = 0
+    following_error_qc: int = 0
+    demand_qc: int = 0
+    op_mode: int = 0
+    received_s: float = float("-inf")     # host monotonic time of the newest TPDO
+    count: int = 0                        # TPDOs received since open
+
+    @property
+    def state(self) -> str:
+        return ds402.state_of(self.statusword)
+
+
+class EposDrive:
+    """One EPOS on one CAN bus. Thread-safe: any thread may command, one loop cycles."""
+
+    def __init__(self, settings: DriveSettings | None = None, bus=None,
+                 clock: Callable[[], float] = time.monotonic):
+        self.settings = settings or DriveSettings()
+        self._clock = clock
+        self._bus = bus
+        self.network: canopen.Network | None = None
+        self.node: BaseNode402 | None = None
+        self._tx_lock = threading.RLock()
+        self._fb_lock = threading.Condition()
+        self._feedback = Feedback()
+        self._controlword = ds402.CW_DISABLE_VOLTAGE
+        self._target_qc = 0
+        self._next_heartbeat = 0.0
+        self._heartbeat_s: float | None = None
+        self._heartbeat_state: int | None = None
+        self._emcy_listeners: list[Callable[[Emcy], None]] = []
+        self._bootup_listeners: list[Callable[[], None]] = []
+        self.emcy_log: list[Emcy] = []
+        self.tx_frames = 0
+
+    # -- connection ---------------------------------------------------------------------
+    def open(self) -> None:
+        s = self.settings
+        with self._fb_lock:
+            self._feedback = Feedback()
+        self._heartbeat_s = self._heartbeat_state = None
+        self.network = canopen.Network(self._bus)
+        self.network.NOTIFIER_CYCLE = 0.1      # how long closing waits for the receive thread
+        if self._bus is None:
+            self.network.connect(interface=s.interface, channel=s.channel, bitrate=s.bitrate,
+                                 **s.bus_options)
+        else:
+            self.network.connect()
+        self.network.notifier.add_listener(_ReceiveFailure(self.network))
+        od = canopen.import_od(s.eds, s.node_id)
+        self.node = BaseNode402(s.node_id, od)
+        self.network.add_node(self.node)
+        self.node.sdo.RESPONSE_TIMEOUT = s.sdo_timeout_s
+        self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
+        self.node.emcy.add_callback(self._on_emcy)
+        self._map_process_data()
+        log.info("EPOS node %d on %s %s", s.node_id, s.interface, s.channel)
+
+    def close(self) -> None:
+        if self.network is not None:
+            try:
+                self.network.disconnect()
+            except Exception as exc:      # a vanished adapter must not stop the shutdown
+                log.debug("disconnect: %s", exc)
+            self.network = None
+
+    def add_emcy_listener(self, fn: Callable[[Emcy], None]) -> None:
+        self._emcy_listeners.append(fn)
+
+    def add_bootup_listener(self, fn: Callable[[], None]) -> None:
+        """Called when the drive announces a (re)boot: its configuration and position are gone."""
+        self._bootup_listeners.append(fn)
+
+    # -- configuration (SDO) --------------------------------------------------------------
+    def configure(self, limits_qc: tuple[int, int] | None = None) -> None:
+        """Write the start-up configuration, map the PDOs and start the node.
+
+        Leaves the drive with its power stage off (switch on disabled), in Position Mode.
+        """
+        s, node = self.settings, self.node
+        node.nmt.state = "PRE-OPERATIONAL"
+        with self._tx_lock:
+            self._controlword = ds402.CW_DISABLE_VOLTAGE
+        self.write(0x6040, 0, ds402.CW_DISABLE_VOLTAGE, verify=False)
+        self.write(0x2210, 1, s.encoder_pulses)
+        self.write(0x2210, 2, s.sensor_type)
+        self.write(0x2210, 4, s.sensor_polarity)
+        self.write(0x6065, 0, s.max_following_error_qc)
+        self.set_position_limits(limits_qc)
+        self.write(0x6060, 0, POSITION_MODE)
+        self.write(0x1005, 0, 0x80)
+        self.write(0x1017, 0, round(s.drive_heartbeat_period_s * 1000))
+        self.write(0x1016, 1, (s.host_node_id << 16) | round(s.host_heartbeat_timeout_s * 1000))
+        self._save_process_data()
+        node.nmt.state = "OPERATIONAL"
+        log.info("EPOS configured: %d pulses, sensor type %d, max following error %d qc, "
+                 "heartbeat %d ms, consumes host %d within %d ms", s.encoder_pulses,
+                 s.sensor_type, s.max_following_error_qc,
+                 round(s.drive_heartbeat_period_s * 1000), s.host_node_id,
+                 round(s.host_heartbeat_timeout_s * 1000))
+
+    def set_position_limits(self, limits_qc: tuple[int, int] | None) -> None:
+        """Software position limits 0x607D (min, max) in qc; None switches them off."""
+        lo, hi = LIMIT_DISABLED if limits_qc is None else (int(limits_qc[0]), int(limits_qc[1]))
+        if lo >= hi:
+            raise DriveError(f"software position limits {lo}..{hi} are empty")
+        self.write(0x607D, 1, lo)
+        self.write(0x607D, 2, hi)
+        if limits_qc is not None:
+            log.info("EPOS software position limits %d .. %d qc", lo, hi)
+
+    def write(self, index: int, subindex: int, value: int, verify: bool = True) -> None:
+        """SDO download, read back to be sure the drive kept it."""
+        var = self.node.sdo[index] if subindex == 0 and not _has_subs(self.node, index) \
+            else self.node.sdo[index][subindex]
+        try:
+            var.raw = value
+            if verify and var.raw != value:
+                raise DriveError(f"0x{index:04X}:{subindex} reads back {var.raw}, wrote {value}")
+        except canopen.SdoAbortedError as exc:
+            raise DriveError(f"0x{index:04X}:{subindex} = {value}: {exc}") from None
+        except canopen.SdoCommunicationError as exc:
+            raise DriveError(f"0x{index:04X}:{subindex}: no answer ({exc})") from None
+
+    def read(self, index: int, subindex: int = 0) -> int:
+        var = self.node.sdo[index] if subindex == 0 and not _has_subs(self.node, index) \
+            else self.node.sdo[index][subindex]
+        try:
+            return var.raw
+        except (canopen.SdoAbortedError, canopen.SdoCommunicationError) as exc:
+            raise DriveError(f"0x{index:04X}:{subindex}: {exc}") from None
+
+    def _map_process_data(self) -> None:
+        """The PDO layout this driver uses, built locally (saved to the drive by configure)."""
+        node, nid = self.node, self.settings.node_id
+        layout = (
+            (node.rpdo, 1, 0x200, 255, (0x6040, 0x2062)),
+            (node.tpdo, 1, 0x180, 1, (0x6041, 0x6064)),
+            (node.tpdo, 2, 0x280, 1, (0x20F4, 0x6062, 0x6061)),
+        )
+        for pdos in (node.rpdo, node.tpdo):
+            for n in range(1, 5):
+                pdo = pdos[n]
+                pdo.clear()
+                pdo.enabled = False
+                pdo.cob_id = (0x100 * n + (0x100 if pdos is node.rpdo else 0x80)) + nid
+        for pdos, n, base, trans_type, objects in layout:
+            pdo = pdos[n]
+            pdo.cob_id = base + nid
+            pdo.trans_type = trans_type
+            pdo.rtr_allowed = False
+            for index in objects:
+                pdo.add_variable(index)
+            pdo.enabled = True
+        self._rpdo = node.rpdo[1]
+        node.tpdo[1].add_callback(self._on_tpdo)
+        node.tpdo[2].add_callback(self._on_tpdo)
+
+    def _save_process_data(self) -> None:
+        node = self.node
+        try:
+            for pdos in (node.rpdo, node.tpdo):
+                for n in range(1, 5):
+                    pdos[n].save()
+        except canopen.SdoAbortedError as exc:
+            raise DriveError(f"PDO mapping refused: {exc}") from None
+        except canopen.SdoCommunicationError as exc:
+            raise DriveError(f"PDO mapping: no answer ({exc})") from None
+        node.setup_pdos(upload=False)          # BaseNode402 follows the statusword by TPDO
+        # Our RPDO's contents are ours alone: never let a frame from another host on the
+        # bus with the same COB-ID overwrite them (canopen subscribes RPDOs on save()).
+        if self._rpdo.on_message in self.network.subscribers.get(self._rpdo.cob_id, []):
+            self.network.unsubscribe(self._rpdo.cob_id, self._rpdo.on_message)
+
+    # -- process data ---------------------------------------------------------------------
+    def cycle(self, target_qc: int | None = None) -> None:
+        """One control period: host heartbeat when due, the setpoint RPDO (with a new
+        target if given), then SYNC."""
+        now = self._clock()
+        with self._tx_lock:
+            if target_qc is not None:
+                self._target_qc = int(target_qc)
+            if now >= self._next_heartbeat:
+                self.network.send_message(0x700 + self.settings.host_node_id, bytes([NMT_OPERATIONAL]))
+                self._next_heartbeat = now + self.settings.host_heartbeat_period_s
+                self.tx_frames += 1
+            self._send_rpdo()
+            self.network.sync.transmit()
+            self.tx_frames += 1
+
+    def command(self, controlword: int) -> None:
+        """Send a controlword now (the RPDO carries the current target with it)."""
+        with self._tx_lock:
+            self._controlword = controlword & 0xFFFF
+            self._send_rpdo()
+
+    def send_target(self, target_qc: int, controlword: int | None = None) -> None:
+        """Send a position setpoint now (and optionally a new controlword in the same frame)."""
+        with self._tx_lock:
+            self._target_qc = int(target_qc)
+            if controlword is not None:
+                self._controlword = controlword & 0xFFFF
+            self._send_rpdo()
+
+    def _send_rpdo(self) -> None:
+        self._rpdo[0x6040].raw = self._controlword
+        self._rpdo[0x2062].raw = self._target_qc
+        self._rpdo.transmit()
+        self.tx_frames += 1
+
+    def fault_reset(self, timeout_s: float = 0.5) -> bool:
+        """A real 0 -> 1 edge of controlword bit 7: bit 7 low until the drive has answered a
+        SYNC after it, then high. True if the drive left the fault state."""
+        with self._tx_lock:
+            self.command(ds402.CW_DISABLE_VOLTAGE)
+            seen = self.feedback().count
+        # Two full SYNC answers (TPDO1 + TPDO2 each) after the bit-7-low frame: the second
+        # answers a SYNC sent after it, so the drive has certainly applied it.
+        if not self.wait_feedback(lambda fb: fb.count >= seen + 4, timeout_s):
+            return False
+        self.command(ds402.CW_FAULT_RESET)
+        ok = self.wait_feedback(lambda fb: not ds402.is_fault(fb.statusword), timeout_s)
+        self.command(ds402.CW_DISABLE_VOLTAGE)
+        return ok
+
+    @property
+    def controlword(self) -> int:
+        return self._controlword
+
+    @property
+    def target_qc(self) -> int:
+        return self._target_qc
+
+    def feedback(self) -> Feedback:
+        with self._fb_lock:
+            return self._feedback
+
+    def wait_feedback(self, predicate: Callable[[Feedback], bool], timeout_s: float) -> bool:
+        """Block until a TPDO makes predicate(feedback) true, or timeout."""
+        end = time.monotonic() + timeout_s
+        with self._fb_lock:
+            while not predicate(self._feedback):
+                left = end - time.monotonic()
+                if left <= 0:
+                    return False
+                self._fb_lock.wait(left)
+            return True
+
+    def heartbeat_age(self, now: float | None = None) -> float:
+        """Seconds since the drive's last heartbeat (inf if none yet)."""
+        if self._heartbeat_s is None:
+            return float("inf")
+        return (self._clock() if now is None else now) - self._heartbeat_s
+
+    @property
+    def heartbeat_state(self) -> int | None:
+        return self._heartbeat_state
+
+    # -- callbacks from canopen's receive thread ------------------------------------------
+    def _on_tpdo(self, pdo) -> None:
+        now = self._clock()
+        with self._fb_lock:
+            fb = self._feedback
+            if pdo.cob_id == self.node.tpdo[1].cob_id:
+                fb = Feedback(pdo[0x6041].raw, pdo[0x6064].raw, fb.following_error_qc,
+                              fb.demand_qc, fb.op_mode, now, fb.count + 1)
+            else:
+                fb = Feedback(fb.statusword, fb.position_qc, pdo[0x20F4].raw, pdo[0x6062].raw,
+                              pdo[0x6061].raw, now, fb.count + 1)
+            self._feedback = fb
+            self._fb_lock.notify_all()
+
+    def _on_heartbeat(self, state: int) -> None:
+        self._heartbeat_s = self._clock()
+        previous, self._heartbeat_state = self._heartbeat_state, state
+        if state == NMT_BOOTUP and previous is not None:
+            log.warning("EPOS node %d rebooted", self.settings.node_id)
+            for fn in self._bootup_listeners:
+                fn()
+
+    def _on_emcy(self, error) -> None:
+        emcy = Emcy(error.code, error.register, bytes(error.data))
+        self.emcy_log.append(emcy)
+        del self.emcy_log[:-50]
+        for fn in self._emcy_listeners:
+            fn(emcy)
+
+
+class _ReceiveFailure(can.Listener):
+    """When the adapter goes away, stop the receive thread quietly instead of letting it
+    die with a traceback; canopen raises the stored error on the next send, which is
+    where the owner of the drive notices and reconnects."""
+
+    def __init__(self, network: canopen.Network):
+        self._network = network
+
+    def on_message_received(self, msg) -> None:
+        pass
+
+    def on_error(self, exc: Exception) -> None:
+        log.warning("CAN receive stopped: %s", exc)
+        self._network.notifier.stop(timeout=0)
+
+
+def _has_subs(node, index: int) -> bool:
+    return not isinstance(node.object_dictionary[index], canopen.objectdictionary.ODVariable)

@@ -1,0 +1,322 @@
+"""The steering safety envelope (design §8): what may reach the drive, and when to stop.
+
+A plain class with an injected clock, so every rule is testable without zenoh, CAN or
+threads. It never talks to the drive: it answers what the target is, and whether the
+watchdog has tripped; the controller sends and stops.
+
+- Rejected: a setpoint that is not a map of known fields; a missing, non-numeric or
+  non-finite angle; a missing lease or someone else's; a stale timestamp; any setpoint
+  while disarmed or tripped.
+- Limited (the reply says "clamped" and which limit): the goal to the calibrated range
+  minus a margin; each target sent to the drive to the slew rate since the previous one,
+  and to a set distance from the measured angle. The target moves toward the goal at the
+  slew rate on every tick, so one setpoint is enough to turn the wheel smoothly.
+- Watchdog: armed and no valid (accepted or clamped) setpoint for `watchdog_s` -> tripped;
+  a new arm is required. Drive faults trip it too, with their cause.
+
+Invariants (tests/steering/test_steering_safety.py checks them for any input): every
+target lies in the allowed range, and moves by at most slew * dt from the one before.
+"""
+from __future__ import annotations
+
+import hmac
+import hashlib
+import logging
+import math
+import secrets
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+log = logging.getLogger("viena.steering.safety")
+
+ACCEPTED, CLAMPED, REJECTED = "accepted", "clamped", "rejected"
+SETPOINT_FIELDS = frozenset({"angle_deg", "angle_rad", "lease", "t", "seq"})
+
+
+@dataclass(frozen=True)
+class SafetySettings:
+    margin_deg: float = 1.0
+    slew_deg_s: float = 30.0
+    #: how far the target may lead the measured angle (the drive faults at 0x6065)
+    max_distance_deg: float = 4.0
+    watchdog_s: float = 0.5
+    #: a setpoint stamped (`t`, ns UTC) longer ago than this, or this far ahead, is stale
+    max_age_s: float = 0.5
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What happened to one setpoint; `target_deg` is what goes to the drive (None if nothing)."""
+    status: str
+    reason: str
+    requested_deg: float | None = None
+    target_deg: float | None = None
+    goal_deg: float | None = None
+    limits: tuple[str, ...] = ()
+
+
+def lease_hash(lease: str | None) -> str | None:
+    """What the state shows of a lease: enough to tell owners apart, useless to steal."""
+    return None if lease is None else hashlib.sha256(lease.encode()).hexdigest()[:12]
+
+
+@dataclass
+class Envelope:
+    settings: SafetySettings = field(default_factory=SafetySettings)
+    clock: Callable[[], float] = time.monotonic
+    wall_ns: Callable[[], int] = time.time_ns
+
+    def __post_init__(self):
+        self.range_deg: tuple[float, float] | None = None
+        self.armed = False
+        self.lease: str | None = None
+        self.goal_deg: float | None = None
+        self.target_deg: float | None = None
+        self.target_t: float | None = None
+        self.last_valid_t: float | None = None
+        self.tripped = ""                 # why the last trip happened ("" = none since arm)
+        self.last: Decision | None = None
+        self._log = DecisionLog()
+
+    # -- configuration -----------------------------------------------------------------------
+    def set_range(self, lo_deg: float, hi_deg: float) -> None:
+        """The calibrated range (before the margin); only while disarmed."""
+        if self.armed:
+            raise RuntimeError("the range cannot change while armed")
+        if not (math.isfinite(lo_deg) and math.isfinite(hi_deg) and lo_deg < hi_deg):
+            raise ValueError(f"bad range {lo_deg}..{hi_deg}")
+        self.range_deg = (float(lo_deg), float(hi_deg))
+
+    def clear_range(self) -> None:
+        if self.armed:
+            self.trip("calibration lost")
+        self.range_deg = None
+
+    @property
+    def allowed_deg(self) -> tuple[float, float] | None:
+        """The range minus the margin on both sides: where targets may go."""
+        if self.range_deg is None:
+            return None
+        lo, hi = self.range_deg[0] + self.settings.margin_deg, self.range_deg[1] - self.settings.margin_deg
+        return (lo, hi) if lo < hi else None
+
+    @property
+    def owner(self) -> str | None:
+        return lease_hash(self.lease)
+
+    # -- arming --------------------------------------------------------------------------
+    def arm_refusal(self, measured_deg: float | None, lease: str | None = None) -> str | None:
+        """Why an arm cannot happen now, or None if it can."""
+        if self.armed and not (lease and self._is_owner(lease)):
+            return "armed by another client"
+        allowed = self.allowed_deg
+        if allowed is None:
+            return "not calibrated" if self.range_deg is None else "calibrated range is narrower than the margins"
+        if measured_deg is None or not math.isfinite(measured_deg):
+            return "no position from the drive"
+        if not allowed[0] <= measured_deg <= allowed[1]:
+            return (f"wheel at {measured_deg:.1f} deg is outside {allowed[0]:.1f}..{allowed[1]:.1f} deg: "
+                    "turn it toward the centre by hand first")
+        return None
+
+    def arm(self, measured_deg: float, lease: str | None = None) -> str:
+        """Take ownership; the target starts at the measured angle. Returns the lease."""
+        refusal = self.arm_refusal(measured_deg, lease)
+        if refusal:
+            raise PermissionError(refusal)
+        now = self.clock()
+        if not self.armed:
+            self.lease = secrets.token_urlsafe(16)
+            self.goal_deg = self.target_deg = float(measured_deg)
+            self.target_t = now
+        self.armed = True
+        self.last_valid_t = now
+        self.tripped = ""
+        log.info("armed by %s at %.2f deg", self.owner, measured_deg)
+        return self.lease
+
+    def disarm(self, lease: str | None) -> bool:
+        """The owner gives the wheel back. False if `lease` is not the owner's."""
+        if not self.armed or not lease or not self._is_owner(lease):
+            return False
+        log.info("disarmed by its owner %s", self.owner)
+        self._release()
+        return True
+
+    def trip(self, reason: str) -> bool:
+        """Stop: disarm with a cause; a new arm is needed. False if already disarmed."""
+        was_armed = self.armed
+        if was_armed or not self.tripped:
+            self.tripped = reason
+        if was_armed:
+            log.warning("tripped: %s (owner %s)", reason, self.owner)
+        self._release()
+        return was_armed
+
+    def _release(self) -> None:
+        self.armed = False
+        self.lease = None
+        self.goal_deg = None
+
+    def _is_owner(self, lease) -> bool:
+        return isinstance(lease, str) and self.lease is not None and \
+            hmac.compare_digest(lease.encode(), self.lease.encode())
+
+    # -- setpoints ---------------------------------------------------------------------------
+    def setpoint(self, payload, measured_deg: float | None) -> Decision:
+        """Judge one setpoint (already parsed to a map) against the measured angle."""
+        now = self.clock()
+        self._watchdog(now)                  # a late setpoint finds the wheel already given up
+        decision = self._judge(payload, measured_deg, now)
+        self.last = decision
+        self._log.record(decision)
+        return decision
+
+    def _judge(self, payload, measured_deg, now) -> Decision:
+        if not isinstance(payload, dict):
+            return Decision(REJECTED, f"expected a map, got {type(payload).__name__}")
+        unknown = sorted((str(k) for k in payload if k not in SETPOINT_FIELDS))
+        if unknown:
+            return Decision(REJECTED, f"unknown field '{unknown[0]}' (known: angle_deg or angle_rad, lease, t, seq)")
+        requested, why = _requested_deg(payload)
+        if why:
+            return Decision(REJECTED, why)
+        lease = payload.get("lease")
+        if lease is None:
+            return Decision(REJECTED, "missing lease: arm first, then send its lease", requested)
+        if not isinstance(lease, str):
+            return Decision(REJECTED, "lease must be text", requested)
+        if not self.armed:
+            why = f"not armed ({self.tripped}): arm again" if self.tripped else "not armed"
+            return Decision(REJECTED, why, requested)
+        if not self._is_owner(lease):
+            return Decision(REJECTED, "lease is not the owner's: another client holds the wheel", requested)
+        stale = self._stale(payload.get("t"))
+        if stale:
+            return Decision(REJECTED, stale, requested)
+        if measured_deg is None or not math.isfinite(measured_deg):
+            return Decision(REJECTED, "no position from the drive", requested)
+        lo, hi = self.allowed_deg
+        goal = min(max(requested, lo), hi)
+        limits = ("range",) if goal != requested else ()
+        target, more = self._next_target(goal, measured_deg, now)
+        self.goal_deg = goal
+        self.last_valid_t = now
+        limits += more
+        if limits:
+            reason = "; ".join(_LIMIT_TEXT[k](self.settings, lo, hi) for k in limits)
+            return Decision(CLAMPED, reason, requested, target, goal, limits)
+        return Decision(ACCEPTED, "", requested, target, goal)
+
+    def _stale(self, t) -> str:
+        if t is None:
+            return ""
+        if isinstance(t, bool) or not isinstance(t, int):
+            return "t must be an integer time in ns UTC"
+        age = (self.wall_ns() - t) / 1e9
+        if age > self.settings.max_age_s:
+            return f"stale: stamped {age:.3f} s ago (limit {self.settings.max_age_s} s)"
+        if age < -self.settings.max_age_s:
+            return f"stamped {-age:.3f} s in the future: check the clocks"
+        return ""
+
+    # -- the periodic part ---------------------------------------------------------------
+    def tick(self, measured_deg: float | None) -> tuple[float | None, str]:
+        """Once per control period: (next target or None, trip reason or "")."""
+        now = self.clock()
+        if not self.armed:
+            return None, ""
+        reason = self._watchdog(now)
+        if reason:
+            return None, reason
+        if measured_deg is None or not math.isfinite(measured_deg):
+            self.trip("no position from the drive")
+            return None, "no position from the drive"
+        target, _ = self._next_target(self.goal_deg, measured_deg, now)
+        return target, ""
+
+    def _watchdog(self, now: float) -> str:
+        """Trip if armed and silent for longer than the deadline; the reason, or ''."""
+        if not self.armed:
+            return ""
+        silent = now - self.last_valid_t
+        if silent <= self.settings.watchdog_s:
+            return ""
+        reason = f"watchdog: no valid setpoint for {silent:.3f} s"
+        self.trip(reason)
+        return reason
+
+    def _next_target(self, goal: float, measured: float, now: float) -> tuple[float, tuple[str, ...]]:
+        """Move the target toward `goal`: within the range, the slew since the last target,
+        and (as far as the slew allows) the distance from the measured angle."""
+        s = self.settings
+        lo, hi = self.allowed_deg
+        step = s.slew_deg_s * max(0.0, now - self.target_t)
+        win_lo, win_hi = max(lo, self.target_deg - step), min(hi, self.target_deg + step)
+        limits: tuple[str, ...] = ()
+        target = min(max(goal, win_lo), win_hi)
+        if target != goal:
+            limits += ("slew",)
+        near_lo, near_hi = measured - s.max_distance_deg, measured + s.max_distance_deg
+        if not near_lo <= target <= near_hi:
+            limits += ("distance",)
+            both_lo, both_hi = max(win_lo, near_lo), min(win_hi, near_hi)
+            if both_lo <= both_hi:
+                target = min(max(target, both_lo), both_hi)
+            else:                      # the wheel is far off: go toward it as fast as allowed
+                target = win_hi if near_lo > win_hi else win_lo
+        self.target_deg, self.target_t = target, now
+        return target, limits
+
+
+_LIMIT_TEXT = {
+    "range": lambda s, lo, hi: f"range: limited to {lo:.1f}..{hi:.1f} deg",
+    "slew": lambda s, lo, hi: f"slew: {s.slew_deg_s:g} deg/s",
+    "distance": lambda s, lo, hi: f"distance: at most {s.max_distance_deg:g} deg from the measured angle",
+}
+
+
+def _requested_deg(payload: dict) -> tuple[float | None, str]:
+    has_deg, has_rad = "angle_deg" in payload, "angle_rad" in payload
+    if has_deg and has_rad:
+        return None, "give angle_deg or angle_rad, not both"
+    if not (has_deg or has_rad):
+        return None, "missing angle_deg (or angle_rad)"
+    name = "angle_deg" if has_deg else "angle_rad"
+    value = payload[name]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None, f"{name} must be a number, got {type(value).__name__}"
+    try:
+        value = float(value)
+    except OverflowError:              # an int beyond any float
+        value = math.inf
+    if not math.isfinite(value):
+        return None, f"{name} is not finite"
+    deg = value if has_deg else math.degrees(value)
+    if not math.isfinite(deg):
+        return None, f"{name} is not finite"
+    return deg, ""
+
+
+class DecisionLog:
+    """Log each kind of decision once when it starts, with how often the previous repeated:
+    a 50 Hz stream of accepted setpoints is one line, every change of verdict is seen."""
+
+    def __init__(self, logger: logging.Logger = log):
+        self._log = logger
+        self._key: tuple[str, str] | None = None
+        self._repeats = 0
+
+    def record(self, d: Decision) -> None:
+        key = (d.status, d.reason.split(":")[0])
+        if key == self._key:
+            self._repeats += 1
+            return
+        if self._repeats:
+            self._log.info("(previous decision repeated %d more times)", self._repeats)
+        self._key, self._repeats = key, 0
+        level = logging.WARNING if d.status == REJECTED else logging.INFO
+        target = "" if d.target_deg is None else f" -> target {d.target_deg:.2f} deg"
+        asked = "" if d.requested_deg is None else f" {d.requested_deg:.2f} deg"
+        self._log.log(level, "setpoint%s %s%s%s", asked, d.status, f" ({d.reason})" if d.reason else "", target)

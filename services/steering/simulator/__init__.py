@@ -1,0 +1,90 @@
+"""The steering drive's twin and how the simulated car serves it.
+
+    [sim.epos0]
+    kind = "epos"
+    port = 0                    # the slcan adapter's TCP port (0 = any free port)
+
+The sim runs the twin on an in-process python-can `virtual` channel and serves that bus as
+a serial CAN adapter (services/sim/slcan_hub.py); the steering service opens it with
+`interface = "slcan"`, `channel = "socket://127.0.0.1:PORT"`. The twin turns the car's
+wheels through `car.set_wheel_source`.
+"""
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+from dataclasses import fields
+
+import canopen
+
+from viena.common.errors import ConfigError
+from viena.services.sim.slcan_hub import SlcanHub
+from viena.services.steering.simulator.plant import CHIRP005, TRAJ01, PlantParams, PositionPlant
+from viena.services.steering.simulator.twin import EposTwin, TwinSettings
+
+__all__ = ["EposDevice", "EposTwin", "PlantParams", "PositionPlant", "TwinSettings",
+           "make_epos_device", "start_twin_on_hub"]
+
+PLANTS = {"traj01": TRAJ01, "chirp005": CHIRP005}
+_channels = itertools.count()
+
+
+class EposDevice:
+    """A twin on its own virtual CAN bus, served to other processes by an slcan hub."""
+
+    def __init__(self, twin: EposTwin, hub: SlcanHub, network: canopen.Network):
+        self.twin, self.hub, self.network = twin, hub, network
+
+    @property
+    def url(self) -> str:
+        """The steering service's slcan channel."""
+        return self.hub.url
+
+    @property
+    def port(self) -> int:
+        return self.hub.port
+
+    def stop(self) -> None:
+        self.twin.stop()
+        self.network.disconnect()
+        self.hub.stop()
+
+
+def start_twin_on_hub(settings: TwinSettings | None = None, host: str = "127.0.0.1",
+                      port: int = 0, bitrate: int = 1_000_000) -> EposDevice:
+    """A running twin reachable as `slcan` on socket://host:port."""
+    channel = f"viena-epos-{os.getpid()}-{next(_channels)}"
+    hub = SlcanHub(channel, host=host, port=port, bitrate=bitrate).start()
+    network = canopen.Network()
+    network.NOTIFIER_CYCLE = 0.1
+    network.connect(interface="virtual", channel=channel, receive_own_messages=False)
+    twin = EposTwin(network, settings).start()
+    return EposDevice(twin, hub, network)
+
+
+def make_epos_device(name: str, table: dict, car, service) -> EposDevice:
+    """The sim's factory (services/sim/devices.py): settings from the [sim.<name>] table."""
+    table = dict(table)
+    port = table.pop("port", 0)
+    bitrate = table.pop("bitrate", 1_000_000)
+    plant = table.pop("plant", "traj01")
+    known = {f.name for f in fields(TwinSettings)} - {"plant"}
+    unknown = set(table) - known
+    source = f"{getattr(service.args, 'config', None)} [sim.{name}]"
+    if unknown:
+        raise ConfigError(f"{source}: unknown setting '{sorted(unknown)[0]}' "
+                          f"(known: bitrate, plant, port, {', '.join(sorted(known))})")
+    if plant not in PLANTS:
+        raise ConfigError(f"{source}: plant must be one of {sorted(PLANTS)}, got {plant!r}")
+    try:
+        settings = TwinSettings(plant=PLANTS[plant], **table)
+    except TypeError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    if logging.getLogger().getEffectiveLevel() > logging.DEBUG:
+        logging.getLogger("canopen").setLevel(logging.WARNING)   # a line per SDO otherwise
+    device = start_twin_on_hub(settings, host=service.settings.get("host", "127.0.0.1"),
+                               port=int(port), bitrate=int(bitrate))
+    car.set_wheel_source(device.twin.wheel_angle_rad)
+    device.twin.hands = car.driver_wheel_angle       # a person drives while the drive is off
+    return device

@@ -1,0 +1,131 @@
+"""The slcan hub as python-can's own `slcan` interface sees it, and as a raw socket does."""
+from __future__ import annotations
+
+import itertools
+import socket
+import time
+
+import can
+import pytest
+
+from viena.services.sim.slcan_hub import SlcanHub, format_frame, parse_frame
+
+_n = itertools.count()
+
+
+@pytest.fixture
+def hub():
+    h = SlcanHub(f"hub-test-{next(_n)}").start()
+    yield h
+    h.stop()
+
+
+@pytest.fixture
+def buses():
+    opened = []
+
+    def open_(*args, **kw) -> can.BusABC:
+        kw.setdefault("sleep_after_open", 0)
+        opened.append(can.Bus(*args, **kw))
+        return opened[-1]
+    yield open_
+    for b in opened:
+        b.shutdown()
+
+
+def recv_all(bus, timeout=0.3):
+    out, end = [], time.monotonic() + timeout
+    while time.monotonic() < end:
+        m = bus.recv(0.05)
+        if m is not None:
+            out.append(m)
+    return out
+
+
+def test_python_can_slcan_opens_it_like_an_adapter(hub, buses):
+    bus = buses(interface="slcan", channel=hub.url, bitrate=1_000_000)
+    assert bus.get_version(1.0) == (10, 13)
+    assert bus.get_serial_number(1.0) == "VIEN"
+
+
+def test_frames_reach_every_other_node_but_not_their_sender(hub, buses):
+    a = buses(interface="slcan", channel=hub.url, bitrate=1_000_000)
+    b = buses(interface="slcan", channel=hub.url, bitrate=1_000_000)
+    sim = buses(interface="virtual", channel=hub.channel)
+    time.sleep(0.1)
+    a.send(can.Message(arbitration_id=0x181, data=b"\x01\x02\x03", is_extended_id=False))
+    a.send(can.Message(arbitration_id=0x1ABCDE, data=b"\xff" * 8, is_extended_id=True))
+    a.send(can.Message(arbitration_id=0x701, is_remote_frame=True, dlc=1, is_extended_id=False))
+    for rx in (b, sim):
+        got = recv_all(rx)
+        assert [(m.arbitration_id, m.is_extended_id, m.is_remote_frame, bytes(m.data)) for m in got] == [
+            (0x181, False, False, b"\x01\x02\x03"), (0x1ABCDE, True, False, b"\xff" * 8), (0x701, False, True, b"")]
+    assert recv_all(a, 0.1) == []
+    sim.send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
+    assert [m.arbitration_id for m in recv_all(a)] == [0x80] == [m.arbitration_id for m in recv_all(b)]
+
+
+def test_listen_only_hears_but_cannot_talk_and_a_wrong_bitrate_hears_nothing(hub, buses):
+    listener = buses(interface="slcan", channel=hub.url, listen_only=True)
+    deaf = buses(interface="slcan", channel=hub.url, bitrate=500_000)
+    sim = buses(interface="virtual", channel=hub.channel)
+    time.sleep(0.1)
+    listener.send(can.Message(arbitration_id=0x123, data=b"\x00", is_extended_id=False))
+    deaf.send(can.Message(arbitration_id=0x124, data=b"\x00", is_extended_id=False))
+    assert recv_all(sim) == []
+    sim.send(can.Message(arbitration_id=0x181, data=b"\x05", is_extended_id=False))
+    assert [m.arbitration_id for m in recv_all(listener)] == [0x181]
+    assert recv_all(deaf) == []
+
+
+def raw_client(hub):
+    s = socket.create_connection((hub.host, hub.port), timeout=1.0)
+    return s
+
+
+def ask(s, text: bytes, expect: int) -> bytes:
+    s.sendall(text)
+    out = b""
+    end = time.monotonic() + 1.0
+    while out.count(b"\r") + out.count(b"\a") < expect and time.monotonic() < end:
+        out += s.recv(100)
+    return out
+
+
+def test_commands_are_answered_as_lawicel_does(hub):
+    with raw_client(hub) as s:
+        assert ask(s, b"V\r", 1) == b"V1013\r"
+        assert ask(s, b"S8\r", 1) == b"\r"
+        assert ask(s, b"t1230\r", 1) == b"\a"             # channel closed: no frames
+        assert ask(s, b"O\r", 1) == b"\r"
+        assert ask(s, b"S6\r", 1) == b"\a"                # no bitrate change while open
+        assert ask(s, b"t12321122\r", 1) == b"z\r"
+        assert ask(s, b"T00000181180\r", 1) == b"Z\r"
+        assert ask(s, b"t12391122\r", 1) == b"\a"          # dlc 9
+        assert ask(s, b"t1232112\r", 1) == b"\a"           # one nibble short
+        assert ask(s, b"tXYZ0\r", 1) == b"\a"
+        assert ask(s, b"?\r", 1) == b"\a"
+        assert ask(s, b"x" * 100, 1) == b"\a"              # no CR at all: resync
+        assert ask(s, b"\rF\r", 2) == b"\rF00\r"
+        assert ask(s, b"C\r", 1) == b"\r"
+
+
+def test_a_client_that_vanishes_does_not_disturb_the_others(hub, buses):
+    a = buses(interface="slcan", channel=hub.url)
+    with raw_client(hub) as s:
+        ask(s, b"O\r", 1)
+    time.sleep(0.1)
+    sim = buses(interface="virtual", channel=hub.channel)
+    sim.send(can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False))
+    assert [m.arbitration_id for m in recv_all(a)] == [0x181]
+    assert hub.clients == 1
+
+
+def test_frame_text_round_trips():
+    for msg in (can.Message(arbitration_id=0x7FF, data=b"\x00\x10", is_extended_id=False),
+                can.Message(arbitration_id=0x1FFFFFFF, data=b"", is_extended_id=True),
+                can.Message(arbitration_id=0x80, is_remote_frame=True, dlc=3, is_extended_id=False)):
+        back = parse_frame(format_frame(msg).decode()[:-1])
+        assert (back.arbitration_id, back.is_extended_id, back.is_remote_frame, back.dlc, bytes(back.data)) == \
+            (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.dlc, bytes(msg.data))
+    assert format_frame(can.Message(arbitration_id=0x12, data=b"\xab", is_extended_id=False), 61_000) == b"t0121AB03E8\r"
