@@ -14,11 +14,11 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
+from vienatest import Processes
 from viena.paths import compose_dir
 
 PY = sys.executable
@@ -50,31 +50,20 @@ class Host:
         self.env = dict(os.environ, VIENA_RUN=str(workdir / name / "run"),
                         VIENA_COMPOSE=str(workdir / "compose"))
         self.env.pop("VIENA_ROUTER_PORT", None)
-        self.procs: list[subprocess.Popen] = []
+        self.processes = Processes()
 
     def run(self, *cmd: str, timeout: float = 120, **env) -> subprocess.CompletedProcess:
         return subprocess.run(["ip", "netns", "exec", self.name, *cmd], env={**self.env, **env},
                               capture_output=True, text=True, timeout=timeout)
 
     def start(self, *cmd: str, **env) -> subprocess.Popen:
-        proc = subprocess.Popen(["ip", "netns", "exec", self.name, *cmd], env={**self.env, **env},
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        self.procs.append(proc)
-        return proc
+        return self.processes.start("ip", "netns", "exec", self.name, *cmd, env={**self.env, **env})
 
     def viena(self, *args: str, timeout: float = 120, **env) -> subprocess.CompletedProcess:
         return self.run(PY, "-m", "viena.cli", *args, timeout=timeout, **env)
 
     def cleanup(self) -> None:
-        for proc in self.procs:
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-        for proc in self.procs:
-            try:
-                proc.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        self.processes.stop_all()
         # whatever is still inside our namespace was started by this test
         left = ip("netns", "pids", self.name, check=False).stdout.split()
         for pid in left:

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import math
 import queue
-import signal
 import sys
 import threading
 import time
@@ -27,7 +26,7 @@ from typing import Any
 from viena.common.errors import InputError
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
-from viena.common.session import (add_common_arguments, car_name, load_settings_file,
+from viena.common.session import (stop_on_signals, add_common_arguments, car_name, load_settings_file,
                                   open_session, zenoh_config)
 
 DATA_STALE_S = 1.0
@@ -580,9 +579,7 @@ def run(args: argparse.Namespace) -> int:
     except (InputError, ValueError) as exc:
         print(f"viena monitor: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     session = open_session(conf, stop)
     if session is None:
         return 0

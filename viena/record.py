@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import logging
 import queue
-import signal
 import socket
 import sys
 import threading
@@ -26,7 +25,7 @@ from pathlib import Path
 from viena.common.errors import InputError
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
-from viena.common.session import (add_common_arguments, car_name, load_settings_file,
+from viena.common.session import (stop_on_signals, add_common_arguments, car_name, load_settings_file,
                                   open_session, zenoh_config)
 from viena.recording import ReceiveClock, RecordingWriter, human_bytes
 
@@ -175,9 +174,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"viena record: cannot write {output}: {exc.strerror or exc}", file=sys.stderr)
         return 1
 
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     session = open_session(conf, stop)
     if session is None:
         writer.discard()

@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import logging
 import queue
-import signal
 import sys
 import threading
 import time
@@ -23,7 +22,7 @@ from viena.common.errors import InputError
 from viena.common.keys import ROOT, Keys
 from viena.common.log import setup_logging
 from viena.common.measure import percentile
-from viena.common.session import add_common_arguments, load_settings_file, open_session, zenoh_config
+from viena.common.session import stop_on_signals, add_common_arguments, load_settings_file, open_session, zenoh_config
 from viena.recording import KeyFilter, Recorded, Recording
 
 log = logging.getLogger("viena.replay")
@@ -201,9 +200,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"viena replay: {exc}", file=sys.stderr)
         return 2
 
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     session = open_session(conf, stop)
     if session is None:
         return 0

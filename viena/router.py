@@ -7,12 +7,11 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
-import threading
 
 from viena.common.config import ConfigError, load_zenoh_config
 from viena.common.log import setup_logging
+from viena.common.session import stop_on_signals
 from viena.paths import router_config
 
 log = logging.getLogger("viena.router")
@@ -41,9 +40,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"viena router: config error: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as exc:

@@ -8,16 +8,14 @@ from __future__ import annotations
 import argparse
 import json
 import queue
-import signal
 import sys
-import threading
 import time
 
 from viena.common.errors import InputError
 from viena.common.log import setup_logging
 from viena.common.payload import is_json_text, to_jsonable
 from viena.common.schema import schema_of, unpack
-from viena.common.session import add_common_arguments, load_settings_file, open_session, zenoh_config
+from viena.common.session import stop_on_signals, add_common_arguments, load_settings_file, open_session, zenoh_config
 
 
 def decode_sample(payload: bytes, encoding: str | None) -> object:
@@ -61,9 +59,7 @@ def run(args: argparse.Namespace) -> int:
     except InputError as exc:
         print(f"viena sub: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     session = open_session(conf, stop)
     if session is None:
         return 0

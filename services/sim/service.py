@@ -7,7 +7,6 @@ device services run their real drivers against it.
 """
 from __future__ import annotations
 
-import math
 import threading
 import time
 
