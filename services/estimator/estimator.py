@@ -34,7 +34,7 @@ import numpy as np
 
 from viena.common.config import merge_settings
 from viena.common.rotation import euler_from_quat, wrap_angle
-from viena.services.estimator.geodesy import LocalFrame
+from viena.common.geodesy import LocalFrame
 from viena.services.estimator.heading import UNKNOWN_VAR, HeadingFilter, course_yaw
 from viena.services.estimator.history import TrajectoryHistory
 from viena.services.estimator.inputs import Fix, ImuLimits, Rejected, gnss_fix, imu_values

@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
-from viena.services.estimator.geodesy import plausible_ecef
+from viena.common.geodesy import plausible_ecef
 
 STANDARD_GRAVITY = 9.80665
 

@@ -16,6 +16,8 @@ import math
 import numpy as np
 import pymap3d
 
+from viena.common.geodesy import geodetic_of_ecef
+
 from viena.common.schema import F, Schema
 
 from .driver.gpstime import gps_to_utc_ns, utc_to_gps
@@ -95,7 +97,7 @@ def fix_from_bestxyz(msg: LogMessage, unit: str, seq: int) -> dict:
     """A fix from one BESTXYZ log, fields as the receiver sent them."""
     d: BestXyz = msg.data
     x, y, z = (float(v) for v in d.position_m)
-    lat, lon, h = pymap3d.ecef2geodetic(x, y, z, WGS84)
+    lat, lon, h = geodetic_of_ecef(x, y, z)
     sample = {
         "seq": seq, "unit": unit, "protocol": "novatel",
         "valid": (d.pos_status == 0 and d.pos_type != 0 and not is_no_fix(d.position_m)

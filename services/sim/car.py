@@ -16,7 +16,8 @@ import numpy as np
 
 from viena.common.rotation import quat_from_euler
 from viena.services.sim.route import Route, default_route
-from viena.services.sim.truth import IST_ORIGIN, Truth, normal_gravity
+from viena.common.geodesy import normal_gravity
+from viena.services.sim.truth import IST_ORIGIN, Truth
 
 
 @dataclass

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pymap3d
 
+from viena.common.geodesy import LocalFrame
 from viena.common.rotation import euler_from_quat, quat_to_matrix
 from viena.common.schema import F, Schema
 
@@ -21,13 +22,6 @@ LISBON_DECLINATION_DEG = 2.48
 LISBON_INCLINATION_DEG = 52.77
 #: IST campus, Lisbon: the simulated car's default ENU origin.
 IST_ORIGIN = (38.7369, -9.1395, 100.0)
-
-
-def normal_gravity(lat_deg: float, height_m: float = 0.0) -> float:
-    """WGS84 normal gravity (Somigliana) with the free-air height term, m/s^2."""
-    s2 = np.sin(np.radians(lat_deg)) ** 2
-    g0 = 9.7803253359 * (1 + 0.00193185265241 * s2) / np.sqrt(1 - 0.00669437999013 * s2)
-    return float(g0 - 3.086e-6 * height_m)
 
 
 @dataclass(frozen=True)
@@ -71,7 +65,7 @@ class Truth:
         return self.vel_enu_mps + self.rot @ np.cross(self.gyro_body_radps, r)
 
     def geodetic_of(self, lever_arm_body_m=(0.0, 0.0, 0.0)) -> tuple[float, float, float]:
-        return _local_geodetic(self.origin).of(self.enu_of(lever_arm_body_m))
+        return _local_frame(self.origin).geodetic_of_enu(*self.enu_of(lever_arm_body_m))
 
     def ecef_of(self, lever_arm_body_m=(0.0, 0.0, 0.0)) -> np.ndarray:
         e, n, u = self.enu_of(lever_arm_body_m)
@@ -90,50 +84,14 @@ class Truth:
         return float(np.arctan2(self.rot[1, 0], self.rot[0, 0]))
 
 
-class LocalGeodetic:
-    """ENU -> geodetic, exact to well under a micrometre, at a fraction of pymap3d's cost.
-
-    pymap3d's scalar ecef2geodetic takes ~0.2 ms, too slow for every truth sample. The map
-    is smooth, so it is linearised around an anchor found with pymap3d itself; the error
-    grows as d^2/R (d = distance from the anchor), so re-anchoring whenever the point is
-    more than a metre away keeps it below 1e-6 m.
-    """
-
-    REANCHOR_M = 1.0
-
-    def __init__(self, origin):
-        self.origin = tuple(float(v) for v in origin)
-        self._anchor = None
-
-    def _exact(self, enu) -> np.ndarray:
-        return np.array(pymap3d.enu2geodetic(*enu, *self.origin), float)
-
-    def _reanchor(self, enu) -> None:
-        base = self._exact(enu)
-        jac = np.empty((3, 3))
-        for k in range(3):
-            step = np.zeros(3)
-            step[k] = 1.0
-            jac[:, k] = self._exact(enu + step) - base
-        self._anchor = (np.array(enu, float), base, jac)
-
-    def of(self, enu) -> tuple[float, float, float]:
-        enu = np.asarray(enu, float)
-        if self._anchor is None or np.abs(enu - self._anchor[0]).max() > self.REANCHOR_M:
-            self._reanchor(enu)
-        at, base, jac = self._anchor
-        lat, lon, h = base + jac @ (enu - at)
-        return float(lat), float(lon), float(h)
+_FRAMES: dict[tuple, LocalFrame] = {}
 
 
-_LOCAL: dict[tuple, LocalGeodetic] = {}
-
-
-def _local_geodetic(origin) -> LocalGeodetic:
+def _local_frame(origin) -> LocalFrame:
     key = tuple(origin)
-    if key not in _LOCAL:
-        _LOCAL[key] = LocalGeodetic(key)
-    return _LOCAL[key]
+    if key not in _FRAMES:
+        _FRAMES[key] = LocalFrame(*key)
+    return _FRAMES[key]
 
 
 TRUTH = Schema("viena.sim.truth/1", {

@@ -14,7 +14,7 @@ from hypothesis import given, settings, strategies as st
 
 from viena.common.rotation import (euler_from_quat, euler_to_matrix, quat_from_euler,
                                    quat_multiply, quat_to_matrix)
-from viena.services.estimator.geodesy import LocalFrame
+from viena.common.geodesy import LocalFrame
 from viena.services.estimator.heading import course_yaw
 from viena.services.estimator.madgwick import attitude_from_vectors
 from viena.services.estimator.navigation import (bearing_distance, compass_heading_deg,

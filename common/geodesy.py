@@ -1,7 +1,10 @@
-"""The local ENU frame at an origin: GNSS ECEF in, ENU and geodetic out (pymap3d, WGS84).
+"""The local ENU frame at an origin: ECEF in, ENU and geodetic out (pymap3d, WGS84).
 
 Seed eq. 5.2 is the rotation used here (with its first row read as [-sin lon, cos lon, 0]);
 the tests check pymap3d against it, and we use the library rather than the equation.
+Shared by the simulated car's truth, the GNSS fixes and the estimator: pymap3d's exact
+ECEF -> geodetic costs ~0.2 ms a call, too much for every sample on a Pi, so geodetic
+coordinates come from an exact anchor plus its Jacobian (see geodetic_of_enu).
 """
 from __future__ import annotations
 
@@ -89,6 +92,9 @@ class LocalFrame:
         jac = [cols[c][r] for r in range(3) for c in range(3)]    # row-major d(geo)/d(enu)
         return (e, n, u, *base, jac)
 
+    def geodetic_of_ecef(self, ecef_m) -> tuple[float, float, float]:
+        return self.geodetic_of_enu(*self.enu_of_ecef(ecef_m))
+
     def vector_to_enu(self, vec_ecef) -> tuple[float, float, float]:
         """A free vector (velocity) from ECEF axes to ENU axes (plain floats)."""
         x, y, z = vec_ecef
@@ -110,3 +116,22 @@ class LocalFrame:
                 self._cov_cache.clear()
             self._cov_cache[key] = cov
         return cov
+
+
+_near: LocalFrame | None = None
+
+
+def geodetic_of_ecef(x: float, y: float, z: float) -> tuple[float, float, float]:
+    """(lat deg, lon deg, ellipsoidal height m) of an ECEF point, to a millimetre.
+
+    Fast for points that follow each other (a receiver's fixes): they share a local frame
+    re-centred when a point is 100 km away. Points far from the Earth's surface (a
+    receiver's no-fix X=100, Y=Z=0) go to pymap3d directly."""
+    global _near
+    if not plausible_ecef(x, y, z):
+        lat, lon, h = pymap3d.ecef2geodetic(x, y, z)
+        return float(lat), float(lon), float(h)
+    frame = _near
+    if frame is None or sum(v * v for v in frame.enu_of_ecef((x, y, z))) > 1e10:
+        frame = _near = LocalFrame.at_ecef((x, y, z))
+    return frame.geodetic_of_ecef((x, y, z))
