@@ -72,6 +72,7 @@ class LocalFrame:
         in ENU to second order: within ANCHOR_RADIUS_M of it the error is d^2 / R < 0.5 mm.
         The anchor follows the car.
         """
+        e, n, u = float(e), float(n), float(u)          # plain floats out, even from numpy
         a = self._anchor
         if a is None or (e - a[0]) ** 2 + (n - a[1]) ** 2 + (u - a[2]) ** 2 > self.ANCHOR_RADIUS_M ** 2:
             a = self._anchor = self._make_anchor(e, n, u)
