@@ -69,7 +69,7 @@ class LocalFrame:
 
         pymap3d's exact answer costs ~0.2 ms (it iterates), too much for every published
         state on a Pi. Near an anchor point solved exactly, geodetic coordinates are linear
-        in ENU to second order: within ANCHOR_RADIUS_M of it the error is d^2 / R < 0.5 mm.
+        in ENU to second order: within ANCHOR_RADIUS_M of it the error is d^2 / R < 0.02 mm.
         The anchor follows the car.
         """
         e, n, u = float(e), float(n), float(u)          # plain floats out, even from numpy
@@ -82,7 +82,7 @@ class LocalFrame:
                 a[4] + j[3] * de + j[4] * dn + j[5] * du,
                 a[5] + j[6] * de + j[7] * dn + j[8] * du)
 
-    ANCHOR_RADIUS_M = 50.0
+    ANCHOR_RADIUS_M = 10.0
 
     def _make_anchor(self, e: float, n: float, u: float):
         base = self.geodetic_of_enu_exact(e, n, u)

@@ -42,8 +42,11 @@ class CalibrationSettings:
     return_tolerance_qc: int = 6_000
     settle_s: float = 0.5
     still_qc: int = 200
-    #: counter jumps no hand can make between two readings: an encoder or bus glitch
+    #: counter jumps no hand can make between two readings: an encoder or bus glitch.
+    #: A busy host reads less often, so the allowance grows with the time between readings
+    #: at a speed no person turns a steering wheel (lock to lock, ~95 000 qc, in < 1 s).
     max_jump_qc: int = 20_000
+    max_hand_speed_qc_s: float = 100_000.0
 
 
 @dataclass(frozen=True)
@@ -141,26 +144,30 @@ class SweepRecorder:
     min_qc: int | None = None
     max_qc: int | None = None
     last_qc: int | None = None
+    last_t: float | None = None
     still_since: float | None = None
     problem: str = ""
     samples: int = 0
 
     def reset(self) -> None:
-        self.min_qc = self.max_qc = self.last_qc = self.still_since = None
+        self.min_qc = self.max_qc = self.last_qc = self.last_t = self.still_since = None
         self.problem = ""
         self.samples = 0
 
     def add(self, qc: int, t: float) -> None:
         s = self.settings
-        if self.last_qc is not None and abs(qc - self.last_qc) > s.max_jump_qc:
-            self.reset()
-            self.problem = f"counter jumped {self.last_qc} -> {qc}: sweep restarted"
+        if self.last_qc is not None:
+            allowed = s.max_jump_qc + s.max_hand_speed_qc_s * max(0.0, t - self.last_t)
+            if abs(qc - self.last_qc) > allowed:
+                last = self.last_qc
+                self.reset()
+                self.problem = f"counter jumped {last} -> {qc}: sweep restarted"
         if self.min_qc is None:
             self.min_qc = self.max_qc = qc
         self.min_qc, self.max_qc = min(self.min_qc, qc), max(self.max_qc, qc)
         if self.last_qc is None or abs(qc - self.last_qc) > s.still_qc:
             self.still_since = t
-        self.last_qc = qc
+        self.last_qc, self.last_t = qc, t
         self.samples += 1
         if self.span_qc > s.max_span_qc:
             span = self.span_qc

@@ -136,3 +136,14 @@ def test_glitches_and_impossible_spans_restart_the_sweep():
     rec = SweepRecorder()
     sweep(rec, [0, 60_000, -60_000])
     assert "more than lock to lock" in rec.problem and rec.span_qc < 100_000
+
+
+def test_a_glitch_restarts_the_sweep_but_a_slow_reader_does_not():
+    rec = SweepRecorder()
+    rec.add(0, 0.00)
+    rec.add(30_000, 0.01)                      # 3 000 000 qc/s: no hand, an encoder glitch
+    assert rec.problem.startswith("counter jumped 0 -> 30000") and rec.samples == 1
+    rec = SweepRecorder()
+    rec.add(0, 0.00)
+    rec.add(30_000, 0.50)                      # a busy host read half a second later
+    assert rec.problem == "" and rec.span_qc == 30_000
