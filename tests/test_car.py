@@ -57,10 +57,10 @@ def test_acceleration_is_the_derivative_of_velocity():
 
 def test_ecef_and_geodetic_agree_with_pymap3d():
     t = drive(30)[-1]
-    lat, lon, h = t.geodetic_of()
-    assert np.allclose(pymap3d.geodetic2ecef(lat, lon, h), t.ecef_of(), atol=1e-6)
+    lat, lon, h = t.geodetic_of()                  # to a tenth of a millimetre
+    assert np.allclose(pymap3d.geodetic2ecef(lat, lon, h), t.ecef_of(), atol=1e-4)
     e, n, u = pymap3d.geodetic2enu(lat, lon, h, *IST_ORIGIN)
-    assert np.allclose([e, n, u], t.enu_m, atol=1e-6)
+    assert np.allclose([e, n, u], t.enu_m, atol=1e-4)
 
 
 def test_lever_arm_points_move_with_the_body():
