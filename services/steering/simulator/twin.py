@@ -40,6 +40,8 @@ from viena.services.steering.driver.epos import EDS_PATH, POSITION_MODE
 from viena.services.steering.simulator.plant import TRAJ01, PlantParams, PositionPlant
 
 log = logging.getLogger(__name__)
+#: the longest step a person's hands take at once, however late the twin's thread runs
+HAND_STEP_MAX_S = 0.01
 
 INDEX_PROCESSING_ERROR = 0xFF02
 SDO_ABORT_STATE = 0x08000022          # "data cannot be transferred: present device state"
@@ -279,11 +281,16 @@ class EposTwin:
         s = self.settings
         if self._sweep is None and s.sweep and not self._swept and self._host_hb_seen_s is not None \
                 and self.node.nmt.state == "OPERATIONAL" and now - self._host_hb_seen_s >= s.sweep_delay_s:
-            self._sweep = self._plan_sweep(now)
+            self._sweep_clock = 0.0
+            self._sweep = self._plan_sweep(0.0)
             log.info("EPOS twin: turning the wheel lock to lock for the calibration")
         if self._sweep is None:
             self._drive_by_hand(dt)
             return
+        # the hands move with the twin's own steps: a starved host process slows the sweep
+        # down rather than making the wheel jump (which the service rightly calls a glitch)
+        self._sweep_clock += min(dt, HAND_STEP_MAX_S)
+        now = self._sweep_clock
         for t0, t1, a, b in self._sweep:
             if t0 <= now < t1:
                 u = (now - t0) / (t1 - t0)
@@ -306,7 +313,7 @@ class EposTwin:
             return
         s = self.settings
         target = math.degrees(angle) / s.slope_deg_per_qc
-        step = s.hands_speed_qc_s * dt
+        step = s.hands_speed_qc_s * min(dt, HAND_STEP_MAX_S)
         self.plant.x += max(-step, min(step, target - self.plant.x))
 
     def _plan_sweep(self, now: float) -> list[tuple[float, float, float, float]]:
