@@ -4,6 +4,7 @@ agrees with the car's ground truth."""
 from __future__ import annotations
 
 import bisect
+from contextlib import contextmanager
 import json
 import subprocess
 import sys
@@ -48,11 +49,16 @@ def car(tmp_path_factory):
         subprocess.run([*VIENA, "down", "--profile", "sim"], env=env, capture_output=True, timeout=60)
 
 
+@contextmanager
 def truth_recorder(session):
+    """Every truth sample while the block runs, decoded."""
     truths: list[dict] = []
     sub = session.declare_subscriber("viena/elettra/sim/truth",
                                      lambda s: truths.append(TRUTH.decode(s.payload.to_bytes())))
-    return truths, sub
+    try:
+        yield truths
+    finally:
+        sub.undeclare()
 
 
 def nearest(truths: list[dict], t_ns: int) -> dict | None:
@@ -68,11 +74,8 @@ def test_every_program_reports_health(car):
 
 
 def test_gnss_fixes_within_noise_of_truth(car):
-    truths, sub = truth_recorder(car)
-    try:
+    with truth_recorder(car) as truths:
         fixes = collect(car, "viena/elettra/gnss/*/fix", 60, timeout=30, decode=FIX.decode)
-    finally:
-        sub.undeclare()
     assert len(fixes) == 60
     errors = []
     for fix in fixes:
@@ -90,11 +93,8 @@ def test_gnss_fixes_within_noise_of_truth(car):
 
 
 def test_imu_samples_agree_with_truth(car):
-    truths, sub = truth_recorder(car)
-    try:
+    with truth_recorder(car) as truths:
         samples = collect(car, "viena/elettra/imu/razor0/sample", 160, timeout=30, decode=IMU_SAMPLE.decode)
-    finally:
-        sub.undeclare()
     assert len(samples) == 160
     seqs = [s["seq"] for s in samples]
     assert seqs == sorted(seqs)
@@ -112,8 +112,7 @@ def test_imu_samples_agree_with_truth(car):
 
 
 def test_estimator_state_tracks_truth(car):
-    truths, sub = truth_recorder(car)
-    try:
+    with truth_recorder(car) as truths:
         # past alignment: the car is parked 10 s, then drives
         end = time.monotonic() + 90.0
         states = []
@@ -122,8 +121,6 @@ def test_estimator_state_tracks_truth(car):
             if states and states[-1]["position_valid"] and states[-1]["aligned"]:
                 break
         states = collect(car, "viena/elettra/estimator/state", 80, timeout=20, decode=STATE.decode)
-    finally:
-        sub.undeclare()
     assert len(states) == 80
     errors = []
     for s in states:
@@ -153,11 +150,8 @@ def test_steering_comes_up_calibrated_and_a_setpoint_turns_the_car(car):
     reply = client.arm()
     assert reply["status"] == "accepted", reply
     try:
-        truths, sub = truth_recorder(car)
-        try:
+        with truth_recorder(car) as truths:
             last = client.hold(10.0, seconds=3.0)
-        finally:
-            sub.undeclare()
         assert last["status"] in ("accepted", "clamped"), last
         wheel_deg = np.degrees(truths[-1]["wheel_angle_rad"])
         assert abs(wheel_deg - 10.0) < 1.0, wheel_deg           # the simulated car turned

@@ -1,4 +1,4 @@
-"""Where the repository's shipped files are: compose profiles, zenoh configs, data."""
+"""Where the repository's shipped files are: compose profiles and zenoh configs."""
 from __future__ import annotations
 
 import os
@@ -9,10 +9,6 @@ REPO = Path(__file__).resolve().parents[1]
 
 def compose_dir() -> Path:
     return Path(os.environ.get("VIENA_COMPOSE", REPO / "compose"))
-
-
-def data_dir() -> Path:
-    return Path(os.environ.get("VIENA_DATA", REPO / "data"))
 
 
 def router_config() -> Path:

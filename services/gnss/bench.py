@@ -23,7 +23,7 @@ from viena.services.gnss.driver.novatel import (
 from viena.services.gnss.fix import FIX, fix_from_bestxyz
 from viena.services.gnss.simulator import NovatelTwin
 from viena.services.gnss.simulator.serve import parked_truth
-from viena.services.sim.twin import ByteTwin, SerialEndpoint
+from viena.services.sim.twin import SerialEndpoint, TwinWrapper
 
 WEEK_MS = 604_800_000
 T_HOST_NS = 1_700_000_000_000_000_000
@@ -64,21 +64,12 @@ def throughput(n: int = 20000, chunk: int = 4096) -> dict[str, float]:
     return {"framing+CRC": run(0), "+log decode": run(1), "+fix sample (msgpack)": run(2)}
 
 
-class StampingTwin(ByteTwin):
+class StampingTwin(TwinWrapper):
     """Wraps a twin and notes when each epoch's bytes left it (they are sent at once)."""
 
     def __init__(self, inner):
-        self.inner = inner
+        super().__init__(inner)
         self.sent_ns: dict[int, int] = {}
-
-    def on_connect(self, now_s):
-        self.inner.on_connect(now_s)
-
-    def feed(self, data, now_s):
-        self.inner.feed(data, now_s)
-
-    def next_due(self, now_s):
-        return self.inner.next_due(now_s)
 
     def poll(self, now_s):
         out = self.inner.poll(now_s)

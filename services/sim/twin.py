@@ -33,6 +33,26 @@ class ByteTwin:
         return now_s + 0.01
 
 
+class TwinWrapper(ByteTwin):
+    """A twin around another one, for benches and tests that watch or damage the line:
+    everything passes through unless a subclass overrides it (usually `poll`)."""
+
+    def __init__(self, inner: ByteTwin):
+        self.inner = inner
+
+    def on_connect(self, now_s: float) -> None:
+        self.inner.on_connect(now_s)
+
+    def feed(self, data: bytes, now_s: float) -> None:
+        self.inner.feed(data, now_s)
+
+    def poll(self, now_s: float) -> bytes:
+        return self.inner.poll(now_s)
+
+    def next_due(self, now_s: float) -> float:
+        return self.inner.next_due(now_s)
+
+
 class SerialEndpoint:
     """Serves one twin on a TCP port, one host at a time, like a serial cable."""
 

@@ -16,7 +16,7 @@ from gnss_helpers import ORIGIN_ECEF, still
 from viena.common.health import HEALTH
 from viena.services.gnss.fix import FIX
 from viena.services.gnss.simulator import NmeaTwin, NovatelTwin
-from viena.services.sim.twin import ByteTwin, SerialEndpoint
+from viena.services.sim.twin import SerialEndpoint, TwinWrapper
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -67,23 +67,14 @@ def near_origin(fix) -> bool:
     return np.linalg.norm(np.array(fix["ecef_m"]) - ORIGIN_ECEF) < 4 * np.linalg.norm(fix["ecef_sigma_m"])
 
 
-class CorruptingTwin(ByteTwin):
+class CorruptingTwin(TwinWrapper):
     """A twin whose line turns bad when armed: bits flip, bytes vanish, junk appears."""
 
     def __init__(self, inner):
-        self.inner = inner
+        super().__init__(inner)
         self.armed = False
         self.clock = inner.clock
         self.rng = np.random.default_rng(7)
-
-    def on_connect(self, now_s):
-        self.inner.on_connect(now_s)
-
-    def feed(self, data, now_s):
-        self.inner.feed(data, now_s)
-
-    def next_due(self, now_s):
-        return self.inner.next_due(now_s)
 
     def poll(self, now_s):
         out = bytearray(self.inner.poll(now_s))
