@@ -80,7 +80,7 @@ class Service:
         self.unit = getattr(args, "unit", None) or self.default_unit
         self.keys = Keys(car_name(args, toml))
         self.settings = self._settings(toml, args)
-        self.zenoh_config = zenoh_config(args, toml)
+        self.zenoh_config = zenoh_config(args, toml, identity=self.unit or self.name)
         self.health = Health(self.name, self.unit)
         self.stopping = threading.Event()
         self.session = None

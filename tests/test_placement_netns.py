@@ -5,6 +5,10 @@ simulated car's twins instead of /dev/ttyUSB*), the "laptop" runs the `laptop` p
 zenoh clients of the Pi's router. The estimator moves between them by editing only the
 profiles' [include] lists, and its state reaches the laptop either way; the laptop's
 clients also survive a restart of the Pi's router.
+
+Both run as on the car: TLS with the car's certificates and the router's access control.
+The keys are made on the Pi (`viena keys init --router-host <its address>`); the laptop
+holds only what it runs with (`viena keys export`), in a key store of its own.
 """
 from __future__ import annotations
 
@@ -47,9 +51,11 @@ class Host:
 
     def __init__(self, name: str, workdir: Path):
         self.name = name
+        self.keys = workdir / name / "keys"
         self.env = dict(os.environ, VIENA_RUN=str(workdir / name / "run"),
-                        VIENA_COMPOSE=str(workdir / "compose"))
-        self.env.pop("VIENA_ROUTER_PORT", None)
+                        VIENA_COMPOSE=str(workdir / "compose"), VIENA_KEYS=str(self.keys))
+        for variable in ("VIENA_ROUTER_PORT", "VIENA_LINK", "VIENA_IDENTITY"):
+            self.env.pop(variable, None)
         self.processes = Processes()
 
     def run(self, *cmd: str, timeout: float = 120, **env) -> subprocess.CompletedProcess:
@@ -127,9 +133,9 @@ def sim_device_env() -> dict:
     }
 
 
-def estimator_states(laptop: Host, count: int, timeout: float = 60) -> list[dict]:
+def estimator_states(laptop: Host, count: int, timeout: float = 60, link: str = "tls") -> list[dict]:
     run = laptop.viena("sub", "viena/elettra/estimator/state", "--json", "-n", str(count),
-                       "--timeout", str(timeout), "--connect", f"tcp/{PI_ADDR}:7447",
+                       "--timeout", str(timeout), "--connect", f"{link}/{PI_ADDR}:7447",
                        timeout=timeout + 30)
     return [json.loads(line)["value"] for line in run.stdout.splitlines() if line.startswith("{")]
 
@@ -145,11 +151,18 @@ def test_estimator_moves_between_laptop_and_pi_by_profile_only(hosts):
     compose = work / "compose"
     move(compose, "estimator", "pi", "laptop")                   # start with it on the laptop
 
+    # keys: made on the Pi, the laptop's identities carried over
+    made = pi.viena("keys", "init", "--router-host", PI_ADDR)
+    assert made.returncode == 0, made.stderr
+    carried = pi.viena("keys", "export", "estimator", "observer", "pilot", "-o", str(laptop.keys))
+    assert carried.returncode == 0, carried.stderr
+
     # the Pi: the simulated car stands in for the hardware, then the pi profile
     pi.start(PY, "-m", "viena.services.sim.service", "--config", str(compose / "sim.toml"),
-             "--connect", "tcp/127.0.0.1:7447")
+             "--connect", "tls/localhost:7447")
     up = pi.viena("up", "--profile", "pi", "-d", **sim_device_env())
     assert up.returncode == 0, up.stderr
+    assert "TLS and access control" in up.stderr
     laptop_env = {"VIENA_PI": PI_ADDR}
     up = laptop.viena("up", "--profile", "laptop", "-d", **laptop_env)
     assert up.returncode == 0, up.stderr
@@ -158,9 +171,29 @@ def test_estimator_moves_between_laptop_and_pi_by_profile_only(hosts):
     # a recorder on the laptop, as a zenoh client of the Pi's router
     recording = work / "drive.mcap"
     recorder = laptop.start(PY, "-m", "viena.cli", "record", "viena/elettra/**", "-o", str(recording),
-                            "-q", "--connect", f"tcp/{PI_ADDR}:7447")
+                            "-q", "--connect", f"tls/{PI_ADDR}:7447")
     states = estimator_states(laptop, 5)
     assert len(states) == 5 and all(s["t"] > 0 for s in states)
+
+    # across the network: no session without a certificate, no steering without the role
+    assert estimator_states(laptop, 1, timeout=5, link="tcp") == []
+    config = laptop.viena("keys", "zenoh-config", "observer", "--connect", f"tls/{PI_ADDR}:7447")
+    (work / "observer.json5").write_text(config.stdout)
+    zenoh_cli = str(Path(PY).parent / "zenoh")
+    arm = ["get", "-s", "viena/elettra/steering/arm", "-v", '{"arm": true}', "--decoder", "text"]
+    refused = laptop.run(zenoh_cli, "--config", str(work / "observer.json5"), *arm, timeout=30)
+    assert refused.returncode == 0 and refused.stdout.strip() == "", refused.stdout + refused.stderr
+    config = laptop.viena("keys", "zenoh-config", "pilot", "--connect", f"tls/{PI_ADDR}:7447")
+    (work / "pilot.json5").write_text(config.stdout)
+    for _ in range(60):                      # the steering twin sweeps lock to lock first
+        armed = laptop.run(zenoh_cli, "--config", str(work / "pilot.json5"), *arm, timeout=30)
+        if '"accepted"' in armed.stdout:
+            break
+    assert '"status":"accepted"' in armed.stdout.replace(" ", ""), armed.stdout + armed.stderr
+    lease = json.loads(armed.stdout.strip().splitlines()[-1])["lease"]
+    disarm = ["get", "-s", "viena/elettra/steering/arm", "-v", json.dumps({"arm": False, "lease": lease}),
+              "--decoder", "text"]
+    assert '"accepted"' in laptop.run(zenoh_cli, "--config", str(work / "pilot.json5"), *disarm).stdout
 
     # the Pi's router restarts: the laptop's clients reconnect and state flows again
     restart = pi.run(PY, "-m", "supervisor.supervisorctl", "-s",

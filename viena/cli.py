@@ -16,7 +16,9 @@ import sys
 
 from viena import compose, router, sub
 
-BENCHES = ["sim", "gnss", "imu", "steering", "estimator", "laptop"]
+BENCHES = ["sim", "gnss", "imu", "steering", "estimator", "laptop", "security"]
+#: benchmarks of the laptop tools and the network live with the `viena` command
+CLI_BENCHES = {"laptop": "viena.bench_laptop", "security": "viena.bench_security"}
 #: commands that live in their own module, each with build_parser(parser) and run(args)
 TOOLS = {
     "monitor": ("viena.monitor", "live dashboard of every service"),
@@ -24,6 +26,7 @@ TOOLS = {
     "replay": ("viena.replay", "publish a recording back into the dataflow"),
     "export": ("viena.export", "an MCAP recording as CSV or JSON"),
     "plot": ("viena.plot", "a recorded drive as a PNG"),
+    "keys": ("viena.keys", "the car's certificates: init, issue, list, zenoh-config"),
 }
 CALIBRATIONS = {"imu": "viena.services.imu.calibration"}
 
@@ -54,7 +57,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-d", "--detach", action="store_true", help="run in the background")
     p.add_argument("--free-ports", action="store_true",
                    help="pick free ports for the profile's VIENA_*_PORT variables")
-    p.set_defaults(func=lambda a: compose.up(a.profile, a.detach, a.free_ports))
+    p.add_argument("--secure", action="store_true",
+                   help="TLS and access control, as on the car, whatever the profile's default "
+                        "(needs `viena keys init`)")
+    p.add_argument("--insecure", action="store_true",
+                   help="plain TCP without access control, even where the router is reachable "
+                        "from other machines (a trusted network only)")
+    p.add_argument("--keys", metavar="DIR",
+                   help="the car's key store (default $VIENA_KEYS, else ~/.config/viena/keys/CAR)")
+    p.set_defaults(func=lambda a: compose.up(a.profile, a.detach, a.free_ports,
+                                             a.secure, a.insecure, a.keys))
 
     p = cmds.add_parser("down", help="stop a running profile and everything in it")
     _profile_arg(p, None)
@@ -111,7 +123,7 @@ def _bench(args) -> int:
         if name not in BENCHES:
             print(f"viena bench: unknown benchmark {name!r} (have {', '.join(BENCHES)})", file=sys.stderr)
             return 2
-        module_name = "viena.bench_laptop" if name == "laptop" else f"viena.services.{name}.bench"
+        module_name = CLI_BENCHES.get(name, f"viena.services.{name}.bench")
         try:
             module = importlib.import_module(module_name)
         except ModuleNotFoundError:

@@ -20,9 +20,11 @@ import time
 from pathlib import Path
 
 from viena.paths import compose_dir
+from viena.profile_security import SecurityRefusal, secure_environment
 
 DEFAULT_PROFILE = "sim"
 _PORT_VAR = re.compile(r"(?:%\(ENV_|\$\{)(VIENA_[A-Z0-9_]*PORT)(?:\)s|:-(\d+)\}|\})")
+_LINK_DEFAULT = re.compile(r"\$\{VIENA_LINK:-(tls|tcp)\}")
 
 
 class ComposeError(Exception):
@@ -66,6 +68,13 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def link_default(profile: str) -> str:
+    """tls or tcp: what the profile's settings say its links are unless told otherwise."""
+    path = compose_dir() / f"{profile}.toml"
+    m = _LINK_DEFAULT.search(path.read_text()) if path.exists() else None
+    return m.group(1) if m else "tcp"
+
+
 def environment(profile: str, free_ports: bool = False) -> dict[str, str]:
     """The variables a profile's files refer to; the caller's environment wins."""
     env = {
@@ -73,6 +82,7 @@ def environment(profile: str, free_ports: bool = False) -> dict[str, str]:
         "VIENA_PYTHON": sys.executable,
         "VIENA_PROFILE": profile,
         "VIENA_SETTINGS": str(compose_dir() / f"{profile}.toml"),
+        "VIENA_LINK": os.environ.get("VIENA_LINK") or link_default(profile),
     }
     for name, default in port_variables(profile).items():
         if name in os.environ:
@@ -114,17 +124,23 @@ def supervisord_pid(profile: str) -> int | None:
         return None
 
 
-def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = False) -> int:
+def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = False,
+       secure: bool = False, insecure: bool = False, keys: str | None = None) -> int:
     conf = profile_file(profile)
     if supervisord_pid(profile):
         raise ComposeError(f"profile '{profile}' is already up: `viena down --profile {profile}` first")
     env = environment(profile, free_ports)
+    try:
+        env.update(secure_environment(conf, env, secure, insecure, keys))
+    except SecurityRefusal as exc:
+        raise ComposeError(f"profile {profile}: {exc}") from None
     run = Path(env["VIENA_RUN"])
     run.mkdir(parents=True, exist_ok=True)
     (run / "env.json").write_text(json.dumps(env, indent=1))
     cmd = [sys.executable, "-m", "supervisor.supervisord", "-c", str(conf)]
     ports = ", ".join(f"{k}={v}" for k, v in env.items() if k.endswith("_PORT"))
-    print(f"viena: profile {profile} up ({ports}); logs in {run}", file=sys.stderr, flush=True)
+    print(f"viena: profile {profile} up ({ports}; {_security_words(env)}); logs in {run}",
+          file=sys.stderr, flush=True)
     if detach:
         subprocess.run(cmd, env=_supervisor_env(env), check=True)
         return wait_running(profile)
@@ -136,6 +152,14 @@ def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = 
         except KeyboardInterrupt:
             print("viena: stopping (Ctrl-C)", file=sys.stderr, flush=True)
             proc.send_signal(signal.SIGINT)
+
+
+def _security_words(env: dict[str, str]) -> str:
+    if env["VIENA_LINK"] == "tls":
+        return f"TLS and access control, keys in {env['VIENA_KEYS']}"
+    if env.get("VIENA_INSECURE") == "1":
+        return "INSECURE: no TLS, no access control"
+    return "plain TCP on this machine only"
 
 
 def ctl(profile: str, *args: str, capture: bool = False) -> subprocess.CompletedProcess:

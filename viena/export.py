@@ -120,14 +120,14 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     what.add_argument("--csv", metavar="DIR", type=Path, help="one CSV file per key into DIR")
     what.add_argument("--json", metavar="FILE", nargs="?", const="-",
                       help="JSON lines into FILE (default stdout)")
-    parser.add_argument("--keys", nargs="+", metavar="KEYEXPR",
+    parser.add_argument("--keyexpr", nargs="+", metavar="KEYEXPR",
                         help="export only keys these key expressions include")
     return parser
 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        keys = KeyFilter(args.keys)
+        keys = KeyFilter(args.keyexpr)
         recording = Recording(args.file)
         if args.csv is not None:
             counts = export_csv(recording, args.csv, keys)

@@ -177,7 +177,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--rate", type=float, default=1.0,
                         help="speed: 1 is as recorded, 2 twice as fast, 0 as fast as possible")
     parser.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")
-    parser.add_argument("--keys", nargs="+", metavar="KEYEXPR",
+    parser.add_argument("--keyexpr", nargs="+", metavar="KEYEXPR",
                         help="replay only keys these key expressions include (as recorded, "
                              "before --car renames them)")
     add_common_arguments(parser)
@@ -194,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
         if args.car is not None:
             Keys(args.car)                               # checks the name
         conf = zenoh_config(args, load_settings_file(args))
-        keys = KeyFilter(args.keys)
+        keys = KeyFilter(args.keyexpr)
         recording = Recording(args.file)
     except (InputError, ValueError) as exc:
         print(f"viena replay: {exc}", file=sys.stderr)

@@ -1,33 +1,74 @@
 """`viena router`: a zenoh session in router mode, for machines without zenohd.
 
 It reads the same JSON5 file zenohd would (compose/zenoh/router.json5), so a user with
-zenohd can run `zenohd -c compose/zenoh/router.json5` instead.
+zenohd can run `zenohd -c compose/zenoh/router.json5` instead (the secured car needs the
+TLS and access-control settings this command adds from the key store).
+
+Listening on `tls/...` secures the router: every client must present a certificate signed
+by the car's CA (mutual TLS) and may do only what its role allows (common/access.py).
+A plain `tcp/` listener reachable from other machines is refused unless `--insecure`
+is given (or VIENA_INSECURE=1, which `viena up --insecure` sets); an insecure router
+says so in its log every minute.
 """
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
+import threading
 
 from viena.common.config import ConfigError, load_zenoh_config
+from viena.common.keys import DEFAULT_CAR
+from viena.common.keystore import KeyStore
 from viena.common.log import setup_logging
-from viena.common.session import stop_on_signals
+from viena.common.secure import is_loopback, is_secure, secure_router
+from viena.common.session import config_endpoints, stop_on_signals
 from viena.paths import router_config
 
 log = logging.getLogger("viena.router")
+INSECURE_WARNING_PERIOD_S = 60.0
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="viena router", description=__doc__)
     parser.add_argument("--listen", metavar="ENDPOINT", action="append",
-                        help="where to listen, e.g. tcp/0.0.0.0:7447 (repeatable; "
+                        help="where to listen, e.g. tls/0.0.0.0:7447 (repeatable; "
                              "default: the config file's listen endpoints)")
     parser.add_argument("--connect", metavar="ENDPOINT", action="append",
                         help="another router to join (repeatable)")
     parser.add_argument("--config", metavar="FILE", default=None,
                         help=f"zenoh JSON5 config (default {router_config()})")
+    parser.add_argument("--car", default=DEFAULT_CAR, metavar="NAME",
+                        help=f"whose key store secures tls/ listeners (default {DEFAULT_CAR})")
+    parser.add_argument("--keys", metavar="DIR",
+                        help="the car's key store (default $VIENA_KEYS, else ~/.config/viena/keys/CAR)")
+    parser.add_argument("--insecure", action="store_true",
+                        help="allow a plain tcp/ listener other machines can reach (no TLS, no "
+                             "access control: anyone on that network can steer)")
     parser.add_argument("--log-level", default="INFO", metavar="LEVEL")
     return parser
+
+
+def secure(conf, args: argparse.Namespace) -> str:
+    """Secure `conf` as its listeners require; returns what the log should say about it."""
+    listen = config_endpoints(conf, "listen")
+    plain = [e for e in listen if not is_secure(e)]
+    insecure = args.insecure or os.environ.get("VIENA_INSECURE") == "1"
+    if any(is_secure(e) for e in listen):
+        if plain:
+            raise ConfigError(f"{', '.join(plain)} next to a tls/ listener: on a secured router "
+                              f"every client presents a certificate, so listen on tls/ only")
+        clients = secure_router(conf, KeyStore.for_car(args.car, args.keys))
+        names = ", ".join(f"{i.name} ({i.role})" for i in clients)
+        return f"secured: mutual TLS and access control; identities: {names or 'none'}"
+    exposed = [e for e in plain if not is_loopback(e)]
+    if exposed and not insecure:
+        raise ConfigError(
+            f"refusing to listen on {', '.join(exposed)} without TLS: anyone on that network "
+            f"could steer the car. Create keys (`viena keys init --router-host ADDRESS`) and "
+            f"listen on tls/, or pass --insecure on a network you trust")
+    return f"INSECURE: {', '.join(exposed)} without TLS or access control" if exposed else "loopback only"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -37,8 +78,9 @@ def run(args: argparse.Namespace) -> int:
     path = args.config or router_config()
     try:
         conf = load_zenoh_config(path, mode="router", listen=args.listen, connect=args.connect)
+        security = secure(conf, args)
     except ConfigError as exc:
-        print(f"viena router: config error: {exc}", file=sys.stderr)
+        print(f"viena router: {exc}", file=sys.stderr)
         return 2
     stop = stop_on_signals()
     try:
@@ -46,12 +88,24 @@ def run(args: argparse.Namespace) -> int:
     except zenoh.ZError as exc:
         print(f"viena router: cannot start: {str(exc).split(' at ')[0]}", file=sys.stderr)
         return 1
-    listening = [str(loc) for loc in session.info.locators()] if hasattr(session.info, "locators") else args.listen
-    log.info("router %s listening on %s (config %s)", session.zid(), listening or "config endpoints", path)
-    stop.wait()
+    listening = config_endpoints(conf, "listen") or args.listen
+    log.info("router %s listening on %s (config %s); %s", session.zid(), ", ".join(listening or []),
+             path, security)
+    _wait(stop, security)
     session.close()
     log.info("router stopped")
     return 0
+
+
+def _wait(stop: threading.Event, security: str) -> None:
+    """Until stopped; an insecure router repeats its warning so nobody forgets it."""
+    if not security.startswith("INSECURE"):
+        stop.wait()
+        return
+    while True:
+        log.warning("%s: anyone on the network can steer the car", security)
+        if stop.wait(INSECURE_WARNING_PERIOD_S):
+            return
 
 
 def main(argv: list[str] | None = None) -> int:

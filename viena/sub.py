@@ -15,7 +15,8 @@ from viena.common.errors import InputError
 from viena.common.log import setup_logging
 from viena.common.payload import is_json_text, to_jsonable
 from viena.common.schema import schema_of, unpack
-from viena.common.session import stop_on_signals, add_common_arguments, load_settings_file, open_session, zenoh_config
+from viena.common.session import (Unreachable, add_common_arguments, load_settings_file, open_session,
+                                  stop_on_signals, zenoh_config)
 
 
 def decode_sample(payload: bytes, encoding: str | None) -> object:
@@ -42,7 +43,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
     parser.add_argument("-n", "--count", type=int, default=0, help="exit after N samples")
     parser.add_argument("--timeout", type=float, default=0.0,
-                        help="exit after this many seconds (0 = run until Ctrl-C)")
+                        help="exit after this many seconds, connecting included (0 = run until Ctrl-C)")
     add_common_arguments(parser)
     return parser
 
@@ -60,7 +61,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"viena sub: {exc}", file=sys.stderr)
         return 2
     stop = stop_on_signals()
-    session = open_session(conf, stop)
+    try:
+        session = open_session(conf, stop, timeout_s=args.timeout or None)
+    except Unreachable as exc:
+        print(f"viena sub: {exc}", file=sys.stderr)
+        return 1
     if session is None:
         return 0
     lines: queue.Queue = queue.Queue()

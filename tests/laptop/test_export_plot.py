@@ -59,7 +59,7 @@ def test_export_csv_one_file_per_key_with_every_value(drive, tmp_path):
 def test_export_json_lines(drive, tmp_path):
     path, written = drive
     out = tmp_path / "drive.jsonl"
-    result = viena("export", path, "--json", out, "--keys", "viena/elettra/steering/**")
+    result = viena("export", path, "--json", out, "--keyexpr", "viena/elettra/steering/**")
     assert result.returncode == 0, result.stderr
     lines = [json.loads(line) for line in out.read_text().splitlines()]
     states = written["viena/elettra/steering/state"]
@@ -67,7 +67,7 @@ def test_export_json_lines(drive, tmp_path):
     assert {line["key"] for line in lines} == {"viena/elettra/steering/state"}
     assert {line["schema"] for line in lines} == {"viena.steering.state/1"}
 
-    to_stdout = viena("export", path, "--json", "--keys", FIX_KEY)
+    to_stdout = viena("export", path, "--json", "--keyexpr", FIX_KEY)
     assert len(to_stdout.stdout.splitlines()) == len(written[FIX_KEY])
 
 

@@ -138,7 +138,7 @@ def test_replay_renames_the_car_and_filters_keys(drive):
         sub, got = listen(s, "viena/**")
         time.sleep(0.5)
         result = viena("replay", out, "--connect", fresh, "--rate", 0, "--car", "twin",
-                       "--keys", "viena/elettra/*/health")
+                       "--keyexpr", "viena/elettra/*/health")
         time.sleep(0.5)
         sub.undeclare()
     assert result.returncode == 0, result.stderr

@@ -67,7 +67,7 @@ def test_replayed_drive_through_the_estimator_reproduces_its_output(procs, tmp_p
     recorder = record(procs, again, replayed_path, f"viena/{CAR}/estimator/state")
     time.sleep(2.0)                                  # both subscribed before the first sample
     replay = procs.python("-m", "viena.cli", "replay", str(drive), "--connect", again,
-                          "--keys", f"viena/{CAR}/imu/**", f"viena/{CAR}/gnss/*/fix")
+                          "--keyexpr", f"viena/{CAR}/imu/**", f"viena/{CAR}/gnss/*/fix")
     assert replay.wait(timeout=120) == 0, replay.stderr.read()
     time.sleep(1.0)
     stop(recorder)

@@ -1,0 +1,129 @@
+"""Who may do what on a secured car: the roles, and zenoh access control built from them.
+
+The router enforces these rules (zenoh `access_control`, default deny) on every client by
+the certificate it presented (common/keystore.py): the certificate's common name is the
+identity, its organizational unit the role. Keys are relative to `viena/<car>/`; `{name}`
+is the identity's own name, which for a device is its unit (gnss0, razor0).
+
+What each word means to the router, for the client holding the role:
+
+- publish K      it may put on K (ingress put)
+- subscribe K    it may subscribe to K and receive what is put there (egress put)
+- serve K        it may answer queries on K (declare a queryable, receive queries, reply)
+- command K      it may query K and receive the replies
+- receive K      it may subscribe to puts on K (a service taking commands as puts)
+- token K        it may hold a liveliness token on K
+
+Replies travel on the query's key expression, so a role that asks `steering/arm` needs
+the replies on `steering/arm`; a wildcard query (`viena/**`) matches no narrower rule
+and is refused, which keeps a discovery query from ever reaching a command. Every role
+may see which keys exist (declarations and liveliness tokens flow to everyone), so
+monitors can discover services.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+STEERING_COMMANDS = ("steering/arm", "steering/setpoint", "steering/calibration", "steering/estop")
+
+
+@dataclass(frozen=True)
+class Role:
+    summary: str
+    publish: tuple[str, ...] = ()
+    subscribe: tuple[str, ...] = ()
+    serve: tuple[str, ...] = ()
+    command: tuple[str, ...] = ()
+    receive: tuple[str, ...] = ()
+    token: tuple[str, ...] = ()
+    liveliness: bool = False          # may watch and query liveliness tokens (discovery)
+
+
+def _device(kind: str) -> Role:
+    return Role(f"the {kind} service of one unit: publishes on its own keys only",
+                publish=(f"{kind}/{{name}}/**",), token=(f"alive/{kind}/{{name}}",))
+
+
+ROLES: dict[str, Role] = {
+    "gnss": _device("gnss"),
+    "imu": _device("imu"),
+    "steering": Role("the steering service: its state and health; answers the steering commands",
+                     publish=("steering/state", "steering/health"), serve=STEERING_COMMANDS,
+                     receive=("steering/setpoint", "steering/estop"), token=("alive/steering",)),
+    "estimator": Role("the estimator: reads the devices, publishes the car's state",
+                      publish=("estimator/**",),
+                      subscribe=("gnss/*/fix", "imu/*/sample", "estimator/waypoint"),
+                      token=("alive/estimator",)),
+    "sim": Role("the simulated car: publishes its ground truth",
+                publish=("sim/**",), token=("alive/sim",)),
+    "pilot": Role("a person or program allowed to drive: arms, steers, calibrates, stops",
+                  subscribe=("**",), command=STEERING_COMMANDS,
+                  publish=("steering/setpoint", "steering/estop", "estimator/waypoint"),
+                  token=("alive/pilot/{name}",), liveliness=True),
+    "observer": Role("anyone else on the car: watches everything and may stop the car",
+                     subscribe=("**",), publish=("steering/estop",), liveliness=True),
+}
+
+
+@dataclass
+class _Policy:
+    """Rules and subjects of one zenoh access_control block, built up identity by identity."""
+
+    root: str
+    rules: list[dict] = field(default_factory=list)
+    subjects: list[dict] = field(default_factory=list)
+    policies: list[dict] = field(default_factory=list)
+
+    def allow(self, rule_ids: list[str], rule_id: str, messages: list[str], flow: str,
+              keys: tuple[str, ...], name: str) -> None:
+        if not keys:
+            return
+        self.rules.append({
+            "id": rule_id, "permission": "allow", "flows": [flow], "messages": messages,
+            "key_exprs": [f"{self.root}/{k.format(name=name)}" for k in keys]})
+        rule_ids.append(rule_id)
+
+    def add(self, name: str, role: Role) -> None:
+        ids: list[str] = []
+        r = f"{name}"
+        self.allow(ids, f"{r}/publish", ["put", "delete"], "ingress", role.publish, name)
+        self.allow(ids, f"{r}/subscribe", ["declare_subscriber"], "ingress", role.subscribe, name)
+        self.allow(ids, f"{r}/subscribe-data", ["put", "delete"], "egress", role.subscribe, name)
+        self.allow(ids, f"{r}/serve", ["declare_queryable", "reply"], "ingress", role.serve, name)
+        self.allow(ids, f"{r}/serve-queries", ["query"], "egress", role.serve, name)
+        self.allow(ids, f"{r}/command", ["query"], "ingress", role.command, name)
+        self.allow(ids, f"{r}/command-replies", ["reply"], "egress", role.command, name)
+        self.allow(ids, f"{r}/receive", ["declare_subscriber"], "ingress", role.receive, name)
+        self.allow(ids, f"{r}/receive-data", ["put"], "egress", role.receive, name)
+        self.allow(ids, f"{r}/token", ["liveliness_token"], "ingress", role.token, name)
+        if role.liveliness:
+            self.allow(ids, f"{r}/liveliness", ["declare_liveliness_subscriber", "liveliness_query"],
+                       "ingress", ("alive/**",), name)
+            self.allow(ids, f"{r}/liveliness-replies", ["reply"], "egress", ("alive/**",), name)
+        ids.append("discovery")
+        self.subjects.append({"id": name, "cert_common_names": [name]})
+        self.policies.append({"id": name, "rules": ids, "subjects": [name]})
+
+
+def access_control(car: str, identities: list[tuple[str, str]]) -> dict:
+    """zenoh's `access_control` block for one car: default deny, then each (name, role)
+    allowed what its role says. Unknown roles are skipped (they get nothing)."""
+    policy = _Policy(f"viena/{car}")
+    policy.rules.append({
+        "id": "discovery", "permission": "allow", "flows": ["egress"],
+        "messages": ["declare_subscriber", "declare_queryable", "liveliness_token"],
+        "key_exprs": [f"viena/{car}/**"]})
+    for name, role in identities:
+        if role in ROLES:
+            policy.add(name, ROLES[role])
+    return {"enabled": True, "default_permission": "deny", "rules": policy.rules,
+            "subjects": policy.subjects, "policies": policy.policies}
+
+
+def describe(role: str) -> str:
+    """One line per permission, for `viena keys roles` and the README's table."""
+    r = ROLES[role]
+    parts = [f"{verb} {', '.join(keys)}" for verb, keys in (
+        ("publish", r.publish), ("subscribe", r.subscribe), ("serve", r.serve),
+        ("command", r.command), ("receive puts on", r.receive), ("token", r.token)) if keys]
+    return "; ".join(parts)

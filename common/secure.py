@@ -1,0 +1,82 @@
+"""Turning a zenoh config into a secured one: zenoh's own TLS, mutual TLS and access control.
+
+A link is secured when its endpoint says so (`tls/host:port`); there is no other switch.
+A client on a `tls/` endpoint must present an identity of the car's key store, checked
+before zenoh sees it, so a bad key is one line naming the file, never a silent fallback
+to an open connection. A router listening on `tls/` demands a certificate from this car's
+CA of every client (mTLS) and applies the access control built from the store.
+"""
+from __future__ import annotations
+
+import json
+
+from viena.common.access import access_control
+from viena.common.keystore import Identity, KeyStore
+
+SECURE_SCHEMES = ("tls/", "quic/")
+LOOPBACK_HOSTS = ("127.", "localhost", "[::1]", "::1")
+
+
+def is_secure(endpoint: str) -> bool:
+    return endpoint.startswith(SECURE_SCHEMES)
+
+
+def is_loopback(endpoint: str) -> bool:
+    """True for an endpoint only this machine can reach (tcp/127.0.0.1:7447)."""
+    host = endpoint.split("/", 1)[-1]
+    return host.startswith(LOOPBACK_HOSTS)
+
+
+def _set(conf, path: str, value) -> None:
+    conf.insert_json5(path, json.dumps(value))
+
+
+def _tls_common(conf, store: KeyStore) -> None:
+    _set(conf, "transport/link/tls/root_ca_certificate", str(store.ca_cert))
+    _set(conf, "transport/link/tls/enable_mtls", True)
+    _set(conf, "transport/link/tls/verify_name_on_connect", True)
+    _set(conf, "transport/link/tls/close_link_on_expiration", True)
+
+
+def secure_client(conf, store: KeyStore, name: str) -> Identity:
+    """Present identity `name` on every TLS link of this session; returns it, checked."""
+    identity = store.identity(name)
+    _tls_common(conf, store)
+    _set(conf, "transport/link/tls/connect_certificate", str(identity.cert))
+    _set(conf, "transport/link/tls/connect_private_key", str(identity.key))
+    return identity
+
+
+def secure_router(conf, store: KeyStore) -> list[Identity]:
+    """Listen with the router's certificate, admit only clients with a certificate of this
+    car's CA, and let each do what its role allows (default deny); returns who may connect."""
+    router = store.router()
+    clients = store.client_identities()
+    _tls_common(conf, store)
+    _set(conf, "transport/link/tls/listen_certificate", str(router.cert))
+    _set(conf, "transport/link/tls/listen_private_key", str(router.key))
+    _set(conf, "transport/link/protocols", ["tls", "quic"])
+    _set(conf, "access_control", access_control(store.car, [(i.name, i.role) for i in clients]))
+    return clients
+
+
+def client_config_json5(store: KeyStore, name: str, connect: list[str]) -> str:
+    """A complete zenoh client config for `name`, for the `zenoh` CLI or any zenoh program."""
+    identity = store.identity(name)
+    conf = {
+        "mode": "client",
+        "connect": {"endpoints": connect},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"tls": {
+            "root_ca_certificate": str(store.ca_cert),
+            "connect_certificate": str(identity.cert),
+            "connect_private_key": str(identity.key),
+            "enable_mtls": True,
+            "verify_name_on_connect": True,
+            "close_link_on_expiration": True,
+        }}},
+    }
+    header = (f"// zenoh client config for '{name}' (role {identity.role}) of car '{store.car}',\n"
+              f"// made by `viena keys zenoh-config`; certificate valid until "
+              f"{identity.not_after:%Y-%m-%d}. Use: zenoh --config THIS_FILE ...\n")
+    return header + json.dumps(conf, indent=2) + "\n"
