@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 
@@ -58,21 +59,32 @@ class SteeringClient:
 
 
 def main(argv=None) -> int:
-    import zenoh
-
-    from viena.common.config import load_zenoh_config
+    from viena.common.errors import InputError
+    from viena.common.log import setup_logging
+    from viena.common.session import (Unreachable, add_common_arguments, car_name, load_settings_file,
+                                      open_session, zenoh_config)
 
     p = argparse.ArgumentParser(prog="viena-steer", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--connect", default="tcp/127.0.0.1:7447", metavar="ENDPOINT")
-    p.add_argument("--car", default="elettra")
-    p.add_argument("--angle-deg", type=float, required=True, help="wheel angle, positive left")
-    p.add_argument("--seconds", type=float, default=5.0)
-    p.add_argument("--rate-hz", type=float, default=20.0)
+    p.add_argument("--angle-deg", type=float, required=True, help="wheel angle in degrees, positive left")
+    p.add_argument("--seconds", type=float, default=5.0, help="how long to hold it (default 5)")
+    p.add_argument("--rate-hz", type=float, default=20.0, help="setpoints per second (default 20)")
+    p.add_argument("--timeout", type=float, default=10.0,
+                   help="give up if the router cannot be reached in this many seconds (default 10)")
+    add_common_arguments(p)
     args = p.parse_args(argv)
-    session = zenoh.open(load_zenoh_config(mode="client", connect=[args.connect]))
+    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
     try:
-        client = SteeringClient(session, args.car)
+        toml = load_settings_file(args)
+        car = car_name(args, toml)
+        # a person at the wheel: their own identity ($VIENA_IDENTITY or --identity), else `pilot`
+        conf = zenoh_config(args, toml, identity=os.environ.get("VIENA_IDENTITY") or "pilot")
+        session = open_session(conf, timeout_s=args.timeout)
+    except (InputError, Unreachable) as exc:
+        print(f"viena-steer: {exc}", file=sys.stderr)
+        return 2
+    try:
+        client = SteeringClient(session, car)
         reply = client.arm()
         print(json.dumps(reply))
         if reply.get("status") != "accepted":

@@ -1,12 +1,13 @@
 """The steering safety envelope (design §8): what may reach the drive, and when to stop.
 
-A plain class with an injected clock, so every rule is testable without zenoh, CAN or
-threads. It never talks to the drive: it answers what the target is, and whether the
-watchdog has tripped; the controller sends and stops.
+A plain class that is told the time (`now_s`, monotonic seconds; `wall_ns` for the
+setpoints' own stamps) and never reads a clock, so every rule is testable without zenoh,
+CAN or threads. It never talks to the drive: it answers what the target is, and whether
+the watchdog has tripped; `core.SteeringCore` sends and stops.
 
-- Rejected: a setpoint that is not a map of known fields; a missing, non-numeric or
-  non-finite angle; a missing lease or someone else's; a stale timestamp; any setpoint
-  while disarmed or tripped.
+- Rejected: a malformed setpoint (`requests.BadSetpoint`: not a map of known fields; a
+  missing, non-numeric or non-finite angle; no lease); someone else's lease; a stale
+  timestamp; any setpoint while disarmed or tripped.
 - Limited (the reply says "clamped" and which limit): the goal to the calibrated range
   minus a margin; each target sent to the drive to the slew rate since the previous one,
   and to a set distance from the measured angle. The target moves toward the goal at the
@@ -24,14 +25,13 @@ import hashlib
 import logging
 import math
 import secrets
-import time
 from dataclasses import dataclass, field
-from typing import Callable
+
+from viena.services.steering.requests import BadSetpoint, Setpoint
 
 log = logging.getLogger("viena.steering.safety")
 
 ACCEPTED, CLAMPED, REJECTED = "accepted", "clamped", "rejected"
-SETPOINT_FIELDS = frozenset({"angle_deg", "angle_rad", "lease", "t", "seq"})
 
 
 @dataclass(frozen=True)
@@ -64,8 +64,6 @@ def lease_hash(lease: str | None) -> str | None:
 @dataclass
 class Envelope:
     settings: SafetySettings = field(default_factory=SafetySettings)
-    clock: Callable[[], float] = time.monotonic
-    wall_ns: Callable[[], int] = time.time_ns
 
     def __post_init__(self):
         self.range_deg: tuple[float, float] | None = None
@@ -120,18 +118,17 @@ class Envelope:
                     "turn it toward the centre by hand first")
         return None
 
-    def arm(self, measured_deg: float, lease: str | None = None) -> str:
+    def arm(self, measured_deg: float, now_s: float, lease: str | None = None) -> str:
         """Take ownership; the target starts at the measured angle. Returns the lease."""
         refusal = self.arm_refusal(measured_deg, lease)
         if refusal:
             raise PermissionError(refusal)
-        now = self.clock()
         if not self.armed:
             self.lease = secrets.token_urlsafe(16)
             self.goal_deg = self.target_deg = float(measured_deg)
-            self.target_t = now
+            self.target_t = now_s
         self.armed = True
-        self.last_valid_t = now
+        self.last_valid_t = now_s
         self.tripped = ""
         log.info("armed by %s at %.2f deg", self.owner, measured_deg)
         return self.lease
@@ -164,35 +161,26 @@ class Envelope:
             hmac.compare_digest(lease.encode(), self.lease.encode())
 
     # -- setpoints ---------------------------------------------------------------------------
-    def setpoint(self, payload, measured_deg: float | None) -> Decision:
-        """Judge one setpoint (already parsed to a map) against the measured angle."""
-        now = self.clock()
-        self._watchdog(now)                  # a late setpoint finds the wheel already given up
-        decision = self._judge(payload, measured_deg, now)
+    def setpoint(self, request: Setpoint | BadSetpoint, measured_deg: float | None,
+                 now_s: float, wall_ns: int) -> Decision:
+        """Judge one setpoint (`requests.parse_setpoint`) against the measured angle, at
+        `now_s`; `wall_ns` is the host's UTC time, for the setpoint's own stamp."""
+        self._watchdog(now_s)                # a late setpoint finds the wheel already given up
+        decision = self._judge(request, measured_deg, now_s, wall_ns)
         self.last = decision
         self._log.record(decision)
         return decision
 
-    def _judge(self, payload, measured_deg, now) -> Decision:
-        if not isinstance(payload, dict):
-            return Decision(REJECTED, f"expected a map, got {type(payload).__name__}")
-        unknown = sorted((str(k) for k in payload if k not in SETPOINT_FIELDS))
-        if unknown:
-            return Decision(REJECTED, f"unknown field '{unknown[0]}' (known: angle_deg or angle_rad, lease, t, seq)")
-        requested, why = _requested_deg(payload)
-        if why:
-            return Decision(REJECTED, why)
-        lease = payload.get("lease")
-        if lease is None:
-            return Decision(REJECTED, "missing lease: arm first, then send its lease", requested)
-        if not isinstance(lease, str):
-            return Decision(REJECTED, "lease must be text", requested)
+    def _judge(self, request, measured_deg, now, wall_ns) -> Decision:
+        if isinstance(request, BadSetpoint):
+            return Decision(REJECTED, request.reason, request.requested_deg)
+        requested = request.angle_deg
         if not self.armed:
             why = f"not armed ({self.tripped}): arm again" if self.tripped else "not armed"
             return Decision(REJECTED, why, requested)
-        if not self._is_owner(lease):
+        if not self._is_owner(request.lease):
             return Decision(REJECTED, "lease is not the owner's: another client holds the wheel", requested)
-        stale = self._stale(payload.get("t"))
+        stale = self._stale(request.t_ns, wall_ns)
         if stale:
             return Decision(REJECTED, stale, requested)
         if measured_deg is None or not math.isfinite(measured_deg):
@@ -209,12 +197,10 @@ class Envelope:
             return Decision(CLAMPED, reason, requested, target, goal, limits)
         return Decision(ACCEPTED, "", requested, target, goal)
 
-    def _stale(self, t) -> str:
-        if t is None:
+    def _stale(self, t_ns: int | None, wall_ns: int) -> str:
+        if t_ns is None:
             return ""
-        if isinstance(t, bool) or not isinstance(t, int):
-            return "t must be an integer time in ns UTC"
-        age = (self.wall_ns() - t) / 1e9
+        age = (wall_ns - t_ns) / 1e9
         if age > self.settings.max_age_s:
             return f"stale: stamped {age:.3f} s ago (limit {self.settings.max_age_s} s)"
         if age < -self.settings.max_age_s:
@@ -222,18 +208,17 @@ class Envelope:
         return ""
 
     # -- the periodic part ---------------------------------------------------------------
-    def tick(self, measured_deg: float | None) -> tuple[float | None, str]:
+    def tick(self, measured_deg: float | None, now_s: float) -> tuple[float | None, str]:
         """Once per control period: (next target or None, trip reason or "")."""
-        now = self.clock()
         if not self.armed:
             return None, ""
-        reason = self._watchdog(now)
+        reason = self._watchdog(now_s)
         if reason:
             return None, reason
         if measured_deg is None or not math.isfinite(measured_deg):
             self.trip("no position from the drive")
             return None, "no position from the drive"
-        target, _ = self._next_target(self.goal_deg, measured_deg, now)
+        target, _ = self._next_target(self.goal_deg, measured_deg, now_s)
         return target, ""
 
     def _watchdog(self, now: float) -> str:
@@ -275,28 +260,6 @@ _LIMIT_TEXT = {
     "slew": lambda s, lo, hi: f"slew: {s.slew_deg_s:g} deg/s",
     "distance": lambda s, lo, hi: f"distance: at most {s.max_distance_deg:g} deg from the measured angle",
 }
-
-
-def _requested_deg(payload: dict) -> tuple[float | None, str]:
-    has_deg, has_rad = "angle_deg" in payload, "angle_rad" in payload
-    if has_deg and has_rad:
-        return None, "give angle_deg or angle_rad, not both"
-    if not (has_deg or has_rad):
-        return None, "missing angle_deg (or angle_rad)"
-    name = "angle_deg" if has_deg else "angle_rad"
-    value = payload[name]
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None, f"{name} must be a number, got {type(value).__name__}"
-    try:
-        value = float(value)
-    except OverflowError:              # an int beyond any float
-        value = math.inf
-    if not math.isfinite(value):
-        return None, f"{name} is not finite"
-    deg = value if has_deg else math.degrees(value)
-    if not math.isfinite(deg):
-        return None, f"{name} is not finite"
-    return deg, ""
 
 
 class DecisionLog:

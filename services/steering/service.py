@@ -10,7 +10,9 @@
     viena/<car>/steering/state        published at state_rate_hz (default 50)
 
 Payloads are msgpack maps or JSON text; a reply comes back in the query's encoding. The
-zenoh callbacks only parse and queue (estop acts at once: it sends one CAN frame).
+zenoh callbacks decode the payload and hand it to the controller, which decides at once in
+the callback's thread (microseconds, a frame or two on the bus; nothing queues); an arm is
+answered once the drive is enabled.
 """
 from __future__ import annotations
 
@@ -116,7 +118,7 @@ class SteeringService(Service):
         if hasattr(self, "controller"):
             self.controller.stop()
 
-    # -- zenoh callbacks: parse, queue, never wait -----------------------------------------
+    # -- zenoh callbacks: decode, decide, never wait ----------------------------------------
     def _queued(self, kind: str):
         def on_query(query: zenoh.Query) -> None:
             data, encoding = _payload_of(query)

@@ -1,7 +1,14 @@
-"""The steering state sample, published at >= 50 Hz on viena/<car>/steering/state."""
+"""The steering state sample, published at >= 50 Hz on viena/<car>/steering/state: its
+schema, and how it is read off the core."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from viena.common.schema import F, Schema
+
+if TYPE_CHECKING:                     # the schema alone must not pull in the CAN stack
+    from viena.services.steering.actions import DriveReading
+    from viena.services.steering.core import SteeringCore
 
 STATE = Schema("viena.steering.state/1", {
     "t": F.time,
@@ -26,3 +33,34 @@ STATE = Schema("viena.steering.state/1", {
     "decision": F.optional(F.map),            # {"status", "reason"} of the last setpoint
     "calibration": F.map,                     # state, min/max/zero/span qc, range_deg, problem
 })
+
+
+def sample(core: "SteeringCore", now: float, wall_ns: int, reading: "DriveReading", seq: int) -> dict:
+    """The state as of `now` (`wall_ns` UTC), the `seq`-th sample."""
+    fb = reading.feedback
+    cal, env = core.calibration, core.envelope
+    fresh = core.fresh(fb, now)
+    last = env.last
+    return {
+        "t": wall_ns,
+        "seq": seq,
+        "phase": core.phase.value,
+        "armed": env.armed,
+        "owner": env.owner,
+        "angle_deg": cal.measured_deg(fb.position_qc) if cal is not None and fresh else None,
+        "angle_qc": fb.position_qc if fresh else None,
+        "target_deg": env.target_deg if env.armed else None,
+        "target_qc": core.target_qc if env.armed else None,
+        "goal_deg": env.goal_deg,
+        "ds402": fb.state if fresh else "unknown",
+        "statusword": fb.statusword,
+        "following_error_qc": fb.following_error_qc,
+        "drive_heartbeat": "ok" if core.drive_alive else "lost",
+        "watchdog": "tripped" if env.tripped.startswith("watchdog") else "ok",
+        "trip": env.tripped,
+        "fault": core.fault_text(fb, now),
+        "emcy": core.emcy,
+        "limits": list(last.limits) if last is not None else [],
+        "decision": {"status": last.status, "reason": last.reason} if last is not None else None,
+        "calibration": core.calibration_state(),
+    }

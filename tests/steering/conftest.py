@@ -10,18 +10,11 @@ import itertools
 import canopen
 import pytest
 
+from steering_helpers import SimClock
 from viena.services.steering.driver import DriveSettings, EposDrive
 from viena.services.steering.simulator.twin import EposTwin, TwinSettings
 
 _channels = itertools.count()
-
-
-class SimClock:
-    def __init__(self, t: float = 1000.0):
-        self.t = t
-
-    def __call__(self) -> float:
-        return self.t
 
 
 class Rig:

@@ -9,12 +9,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from viena.services.steering.requests import parse_setpoint
 from viena.services.steering.safety import (ACCEPTED, CLAMPED, REJECTED, DecisionLog, Envelope,
                                             SafetySettings, lease_hash)
 
 RANGE = (-29.0, 29.0)
 PERIOD = 0.01                         # the control loop's tick
 SAFE = SafetySettings()               # margin 1 deg, slew 30 deg/s, distance 4 deg, watchdog 0.5 s
+
+
+WALL_NS = 1_700_000_000_000_000_000  # the host's UTC time, for the setpoints' own stamps
 
 
 class FakeClock:
@@ -25,11 +29,32 @@ class FakeClock:
         return self.t
 
 
-def make_envelope(clock=None, **kw) -> Envelope:
-    env = Envelope(SafetySettings(**kw) if kw else SAFE, clock=clock or FakeClock(),
-                   wall_ns=lambda: 1_700_000_000_000_000_000)
+class Timed:
+    """An envelope and the simulated time it is told: `clock.t += dt` between calls."""
+
+    def __init__(self, env: Envelope, clock: FakeClock):
+        self.env, self.clock = env, clock
+
+    def __getattr__(self, name):
+        return getattr(self.env, name)
+
+    def arm(self, measured_deg, lease=None):
+        return self.env.arm(measured_deg, self.clock.t, lease)
+
+    def setpoint(self, payload, measured_deg):
+        return self.env.setpoint(parse_setpoint(payload), measured_deg, self.clock.t, WALL_NS)
+
+    def tick(self, measured_deg):
+        return self.env.tick(measured_deg, self.clock.t)
+
+    def wall_ns(self) -> int:
+        return WALL_NS
+
+
+def make_envelope(clock=None, **kw) -> Timed:
+    env = Envelope(SafetySettings(**kw) if kw else SAFE)
     env.set_range(*RANGE)
-    return env
+    return Timed(env, clock or FakeClock())
 
 
 # -- plain rules --------------------------------------------------------------------------
@@ -154,7 +179,7 @@ def test_a_second_client_can_neither_arm_nor_disarm_nor_steer():
 
 
 def test_arming_is_refused_uncalibrated_or_with_the_wheel_outside():
-    env = Envelope(SAFE, clock=FakeClock())
+    env = Envelope(SAFE)
     assert env.arm_refusal(0.0) == "not calibrated"
     env.set_range(*RANGE)
     assert "outside" in env.arm_refusal(28.5)

@@ -21,7 +21,7 @@ setpoints, and configures the drive to consume it (0x1016): if the host process 
 loop hangs, the drive faults by itself (CAN Life Guard Error) and stops the motor.
 
 This module imports neither zenoh nor msgpack; the state machine policy (when to enable,
-when to reset a fault) belongs to the caller.
+when to reset a fault: `arming.py`) belongs to the caller.
 """
 from __future__ import annotations
 
@@ -294,21 +294,6 @@ class EposDrive:
         self._rpdo[0x2062].raw = self._target_qc
         self._rpdo.transmit()
         self.tx_frames += 1
-
-    def fault_reset(self, timeout_s: float = 0.5) -> bool:
-        """A real 0 -> 1 edge of controlword bit 7: bit 7 low until the drive has answered a
-        SYNC after it, then high. True if the drive left the fault state."""
-        with self._tx_lock:
-            self.command(ds402.CW_DISABLE_VOLTAGE)
-            seen = self.feedback().count
-        # Two full SYNC answers (TPDO1 + TPDO2 each) after the bit-7-low frame: the second
-        # answers a SYNC sent after it, so the drive has certainly applied it.
-        if not self.wait_feedback(lambda fb: fb.count >= seen + 4, timeout_s):
-            return False
-        self.command(ds402.CW_FAULT_RESET)
-        ok = self.wait_feedback(lambda fb: not ds402.is_fault(fb.statusword), timeout_s)
-        self.command(ds402.CW_DISABLE_VOLTAGE)
-        return ok
 
     @property
     def controlword(self) -> int:
