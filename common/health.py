@@ -19,6 +19,18 @@ HEALTH = Schema("viena.health/1", {
     "state": F.optional(F.map),   # anything else the service wants seen (connected, ...)
 })
 
+# What every device service reports about its device, under these names and no others: the
+# device supervisor (common/supervisor.py) keeps them, the monitor reads them.
+RECONNECTS = "reconnects"               # counts: the device came back after it was lost
+CONNECT_FAILURES = "connect_failures"   # errors: an attempt to open or start it failed
+PORT_FAILURES = "port_failures"         # errors: the open port failed (unplugged, I/O error)
+SILENCES = "silences"                   # errors: it said nothing for its silence timeout
+INTERNAL_ERRORS = "internal_errors"     # errors: handling it raised (a bug); it was reopened
+DEVICE_ERRORS = (CONNECT_FAILURES, PORT_FAILURES, SILENCES, INTERNAL_ERRORS)
+CONNECTED = "connected"                 # state: True while it is open and being served
+LAST_ERROR = "last_error"               # state: why it was last lost or not reached
+PORT = "port"                           # state: its URL
+
 
 class Health:
     """Counters a service bumps from any thread; `snapshot()` turns them into a sample."""

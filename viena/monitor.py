@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from viena.common.errors import InputError
+from viena.common.health import RECONNECTS
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
 from viena.common.session import (stop_on_signals, add_common_arguments, car_name, load_settings_file,
@@ -219,7 +220,9 @@ class MonitorModel:
         # as the service reported it: the health's own age says how old that report is
         view.last_sample_age_s = _number(h.get("last_sample_age_s"))
         view.state = h.get("state") if isinstance(h.get("state"), dict) else {}
-        view.reconnects = _reconnects(h)
+        # device services count them under one name (common/health.py); others have none
+        reconnects = counts.get(RECONNECTS)
+        view.reconnects = None if reconnects is None else int(reconnects)
         return view
 
 
@@ -232,16 +235,6 @@ def _numbers(v) -> dict[str, float]:
     if not isinstance(v, dict):
         return {}
     return {str(k): n for k, x in v.items() if (n := _number(x)) is not None}
-
-
-def _reconnects(health: dict) -> int | None:
-    """Services count reconnects under names of their own: any counter naming one."""
-    found = None
-    for table in ("counts", "errors", "state"):
-        for name, v in _numbers(health.get(table)).items():
-            if "reconnect" in name:
-                found = (found or 0) + int(v)
-    return found
 
 
 # -- formatting (plain text pieces; rich only arranges them) ----------------------------------

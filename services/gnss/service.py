@@ -4,23 +4,26 @@
     viena-gnss --unit gps0 --port socket://127.0.0.1:5002 --protocol nmea
 
 The driver does the bytes; this process configures the receiver (the car's start-up
-sequence), turns its logs into samples, and keeps going whatever the device does: a port
-that fails or a receiver that goes silent is reported in health, closed, and reopened
-with a backoff capped at ``reconnect_max_s``, so data flows again within a second of the
-device coming back. Health counts frames, CRC errors, resyncs, command failures,
-reconnects and the age of the last fix.
+sequence), turns its logs into samples, and keeps going whatever the device does: the
+device supervisor (common/supervisor.py) reports a port that fails or a receiver that goes
+silent in health, closes it, and reopens it with a backoff capped at ``reconnect_max_s``,
+so data flows again within a second of the device coming back. Health counts frames, CRC
+errors, resyncs, command failures, the supervisor's reconnects and failures, and the age
+of the last fix.
 """
 from __future__ import annotations
 
 import itertools
 import threading
-import time
+from abc import abstractmethod
 from dataclasses import replace
 
 import serial
 
 from viena.common.errors import ConfigError
 from viena.common.service import Service, run_service
+from viena.common.silence import SilenceWatch
+from viena.common.supervisor import Backoff, Device, DeviceSupervisor
 
 from .driver.nmea import NmeaReceiver
 from .driver.novatel import (
@@ -44,17 +47,54 @@ def _choice(settings: dict, name: str, allowed, source: str) -> str:
     return value
 
 
-class NovatelSource:
+class ReceiverDevice(Device):
+    """What both receivers share under the supervisor: their reader thread reports a port
+    that failed, which `serve` raises in the supervisor's thread, and every frame or
+    sentence they decode is a sign of life."""
+
+    protocol = ""
+    connect_errors = CONNECT_ERRORS
+
+    def __init__(self, service: "GnssService"):
+        self.service = service
+        self._failed = threading.Event()
+        self._failure = ""
+
+    def link_failed(self, exc: Exception) -> None:
+        """The driver's port failed (called from its reader thread)."""
+        self._failure = str(exc) or type(exc).__name__
+        self._failed.set()
+
+    def connect(self, again: bool) -> None:
+        self._failed.clear()
+        self._start(again)
+
+    def serve(self, timeout_s: float) -> None:
+        """The reader thread does the work; here only wait, and pass on what it saw."""
+        if self._failed.wait(timeout_s):
+            raise serial.SerialException(self._failure)
+        self.service.silence.heard(self.last_rx_ns())
+
+    @abstractmethod
+    def _start(self, again: bool) -> None:
+        """Open (and configure) the receiver."""
+
+    @abstractmethod
+    def last_rx_ns(self) -> int:
+        """Host time of the last frame or sentence the driver decoded."""
+
+
+class NovatelSource(ReceiverDevice):
     """A NovAtel OEM4 receiver: start-up sequence, BESTXYZ (or BESTPOS+BESTVEL) to fixes."""
 
     protocol = "novatel"
+    kind = "NovAtel receiver"
 
     def __init__(self, service: "GnssService"):
+        super().__init__(service)
         s = service.settings
-        self.service = service
         self.receiver = NovatelReceiver(s["port"], command_timeout=s["command_timeout_s"],
-                                        on_log=self._on_log,
-                                        on_link_error=service.link_failed)
+                                        on_log=self._on_log, on_link_error=self.link_failed)
         send_break = {"auto": None, "on": True, "off": False}[s["send_break"]]
         logs = tuple(LogRequest(MessageId[name], Trigger[s["trigger"]], s["period_s"])
                      for name in s["logs"])
@@ -64,8 +104,10 @@ class NovatelSource:
             sbas=SbasKeyword[s["sbas"]] if s["sbas"] else None,
             sbas_system=SbasSystem[s["sbas_system"]], logs=logs)
         self.builder = NovatelFixBuilder(service.unit, join_bestvel="BESTVEL" in s["logs"])
+        #: the log that marks an epoch: the one the fixes are made from
+        self.epoch_log = MessageId.BESTXYZ if "BESTXYZ" in s["logs"] else MessageId.BESTPOS
 
-    def connect(self, again: bool = False) -> None:
+    def _start(self, again: bool) -> None:
         """The start-up sequence. Coming back after a lost link, first try the receiver
         as it most likely still is (working rate, no 2 s break), then the whole sequence."""
         if again and self.config.send_break is not False:
@@ -97,29 +139,30 @@ class NovatelSource:
         return counts, errors
 
     def _on_log(self, message) -> None:
+        if message.header.message_id == self.epoch_log:
+            self.service.silence.epoch(message.t_host_ns)
         self.service.publish_all(lambda: self.builder.add(message))
 
 
-class NmeaSource:
+class NmeaSource(ReceiverDevice):
     """An NMEA receiver: nothing to configure, each epoch one fix."""
 
     protocol = "nmea"
+    kind = "NMEA receiver"
 
     def __init__(self, service: "GnssService"):
+        super().__init__(service)
         s = service.settings
-        self.service = service
         self.baud = s["baud"]
         self.uere_m = s["nmea_uere_m"]
         self.receiver = NmeaReceiver(s["port"], on_fix=self._on_fix,
-                                     on_link_error=service.link_failed)
+                                     on_link_error=self.link_failed)
 
-    def connect(self, again: bool = False) -> None:
+    def _start(self, again: bool) -> None:
         self.receiver.open(self.baud)
 
     def disconnect(self) -> None:
         self.receiver.close()
-
-    shutdown = disconnect
 
     def last_rx_ns(self) -> int:
         return self.receiver.last_sentence_host_ns
@@ -134,6 +177,8 @@ class NmeaSource:
         return counts, errors
 
     def _on_fix(self, fix) -> None:
+        self.service.silence.epoch(fix.t_host_ns)
+
         def build():
             sample = fix_from_nmea(fix, self.service.unit, 0, self.uere_m)
             if sample is None:
@@ -161,7 +206,8 @@ class GnssService(Service):
         "sbas": "ENABLE",               # ENABLE | DISABLE | "" (leave the receiver's)
         "sbas_system": "AUTO",          # NONE AUTO ANY WAAS EGNOS MSAS
         "command_timeout_s": 1.0,
-        "silence_timeout_s": 1.0,       # no bytes for this long: reconnect
+        "silence_timeout_s": 1.0,       # nothing decoded for this long: reconnect ...
+        "silence_epochs": 3.0,          # ... or this many epoch intervals, if longer (0: off)
         "reconnect_max_s": 0.5,         # backoff cap between attempts
         "nmea_uere_m": 3.0,             # NMEA sigmas = DOP x this user range error
     }
@@ -197,39 +243,29 @@ class GnssService(Service):
         for name in ("period_s", "command_timeout_s", "silence_timeout_s", "reconnect_max_s"):
             if not s[name] > 0:
                 raise ConfigError(f"{source}: setting '{name}' must be positive")
+        if not s["silence_epochs"] >= 0:
+            raise ConfigError(f"{source}: setting 'silence_epochs' must not be negative")
         self._seq = itertools.count(1)
-        self._link_error = threading.Event()
-        self._link_error_text = ""
-        self._pushed: dict[str, int] = {}
-        self._thread: threading.Thread | None = None
-        self.source = None
+        self.source: ReceiverDevice | None = None
+        self.supervisor: DeviceSupervisor | None = None
+        self.silence = SilenceWatch(s["silence_timeout_s"], epochs=s["silence_epochs"] or None)
 
     # -- life ------------------------------------------------------------------------
     def start(self) -> None:
+        s = self.settings
         self.fix_pub = self.publisher(self.keys.key("gnss", self.unit, "fix"), FIX)
-        self.source = (NmeaSource if self.settings["protocol"] == "nmea" else NovatelSource)(self)
-        self.health.set("port", self.settings["port"])
+        self.source = (NmeaSource if s["protocol"] == "nmea" else NovatelSource)(self)
         self.health.set("protocol", self.source.protocol)
-        self.health.set("connected", False)
-        counts, errors = self.source.counters()       # show every counter, even at zero
-        for name in counts:
-            self.health.count(name, 0)
-        for name in (*errors, "connect_failures", "reconnects", "silences", "port_failures"):
-            self.health.error(name, 0)
-        self._thread = threading.Thread(target=self._supervise, name="gnss-supervisor",
-                                        daemon=True)
-        self._thread.start()
+        self.supervisor = DeviceSupervisor(
+            self.source, self.health, self.silence, url=s["port"],
+            backoff=Backoff(FIRST_RETRY_S, s["reconnect_max_s"]), tick_s=WATCH_PERIOD_S,
+            stopping=self.stopping).start()
 
     def stop(self) -> None:
-        """Let the supervisor say UNLOGALL and close; if it is stuck waiting for an
-        answer, close the port under it so it gives up at once."""
+        """The supervisor says UNLOGALL and closes (or gives up if the receiver is stuck)."""
         self.stopping.set()
-        if self._thread is None:
-            return
-        self._thread.join(timeout=0.7)
-        if self._thread.is_alive():
-            self.source.disconnect()
-            self._thread.join(timeout=0.8)
+        if self.supervisor is not None:
+            self.supervisor.stop()
 
     # -- samples ---------------------------------------------------------------------
     def publish_all(self, build) -> None:
@@ -248,78 +284,6 @@ class GnssService(Service):
                 self.health.set("pos_status", sample["pos_status"])
                 self.health.set("pos_type", sample["pos_type"])
                 self.health.set("sats_used", sample["sats_used"])
-
-    # -- connection ------------------------------------------------------------------
-    def link_failed(self, exc: Exception) -> None:
-        """The driver's port failed (called from its reader thread)."""
-        self._link_error_text = str(exc) or type(exc).__name__
-        self._link_error.set()
-
-    def _supervise(self) -> None:
-        url = self.settings["port"]
-        delay, attempts, connected_once = 0.0, 0, False
-        while not self.stopping.is_set():
-            self._link_error.clear()
-            try:
-                self.source.connect(again=connected_once)
-            except CONNECT_ERRORS as exc:
-                self.source.disconnect()
-                self._push_counters()
-                if self.stopping.is_set():
-                    break
-                self.health.error("connect_failures")
-                self.health.set("last_error", str(exc))
-                log = self.log.warning if attempts == 0 else self.log.debug
-                log("%s: cannot start the receiver: %s (retrying)", url, exc)
-                attempts += 1
-                delay = min(max(2 * delay, FIRST_RETRY_S), self.settings["reconnect_max_s"])
-                self.stopping.wait(delay)
-                continue
-            if connected_once:
-                self.health.error("reconnects")
-                self.log.info("%s: receiving again (after %d failed attempts)", url, attempts)
-            else:
-                self.log.info("%s: receiving (%s)", url, self.source.protocol)
-            connected_once, attempts, delay = True, 0, 0.0
-            self.health.set("connected", True)
-            reason = self._watch()
-            self.health.set("connected", False)
-            if reason is None:
-                break
-            self.health.set("last_error", reason)
-            self.log.warning("%s: %s: reconnecting", url, reason)
-            self.source.disconnect()
-        self._push_counters()
-        try:
-            self.source.shutdown()
-        except Exception as exc:  # noqa: BLE001 - closing is best effort
-            self.log.debug("shutdown: %s", exc)
-
-    def _watch(self) -> str | None:
-        """Wait while the receiver talks; the reason it stopped, None when stopping."""
-        silence_ns = int(self.settings["silence_timeout_s"] * 1e9)
-        since = time.time_ns()
-        while not self.stopping.wait(WATCH_PERIOD_S):
-            self._push_counters()
-            if self._link_error.is_set():
-                self.health.error("port_failures")
-                return f"port failed ({self._link_error_text})"
-            now = time.time_ns()
-            quiet_ns = now - max(self.source.last_rx_ns(), since)
-            if quiet_ns > silence_ns:
-                self.health.error("silences")
-                return f"silent for {quiet_ns / 1e9:.1f} s"
-        return None
-
-    def _push_counters(self) -> None:
-        """Move the driver's running totals into health (as increments, so rates work)."""
-        counts, errors = self.source.counters()
-        for table, bump in ((counts, self.health.count), (errors, self.health.error)):
-            for name, total in table.items():
-                delta = total - self._pushed.get(name, 0)
-                if delta:
-                    bump(name, delta)
-                    self._pushed[name] = total
 
 
 def main(argv=None) -> int:

@@ -3,20 +3,20 @@
     viena-imu --unit razor0 --port /dev/ttyUSB0 [--firmware viena|razor-ahrs]
 
 Publishes viena.imu.sample/1 on viena/<car>/imu/<unit>/sample at the device rate. The
-device may vanish, stall or send garbage: the service reports it in its health, reopens
-the port with a backoff of at most `reconnect_max_s`, and goes on.
+device may vanish, stall or send garbage: the device supervisor (common/supervisor.py)
+reports it in the health, reopens the port with a backoff of at most `reconnect_max_s`,
+and goes on.
 """
 from __future__ import annotations
 
 import argparse
-import threading
 import time
 from pathlib import Path
 
-import serial
-
 from viena.common.errors import ConfigError
 from viena.common.service import Service, run_service
+from viena.common.silence import SilenceWatch
+from viena.common.supervisor import Backoff, Device, DeviceSupervisor
 from viena.services.imu.calibration import DEFAULT_FILE, FIRMWARES, SampleCalibrator, load_calibration
 from viena.services.imu.driver import DRIVERS, RazorAhrs, SerialImu
 from viena.services.imu.glitch import MagGlitchFilter
@@ -27,6 +27,38 @@ _ERROR_STATS = ("crc_errors", "resyncs", "bytes_skipped", "bad_frames")
 #: how often decoder counters reach the health, board text the log, and the calibration
 #: file's time stamp is looked at
 CHORES_PERIOD_S = 0.25
+FIRST_RETRY_S = 0.05
+
+
+class RazorDevice(Device):
+    """The Razor driver under the supervisor. Its reading is pulled, so `serve` reads and
+    publishes the frames of one period in the supervisor's thread, then does the chores."""
+
+    kind = "Razor IMU"
+
+    def __init__(self, service: "ImuService", driver: SerialImu):
+        self.service, self.driver = service, driver
+
+    def connect(self, again: bool) -> None:
+        self.driver.open()
+
+    def serve(self, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        while (left_s := deadline - time.monotonic()) > 0:
+            reading = self.driver.read(timeout=left_s)
+            if reading is None:
+                break
+            self.service.silence.heard(reading.t_host_ns)
+            self.service.publish(reading)
+        self.service.chores()
+
+    def disconnect(self) -> None:
+        self.driver.close()
+        self.service.builder.mag_filter.reset()
+
+    def counters(self) -> tuple[dict, dict]:
+        stats = self.driver.stats
+        return {}, {name: getattr(stats, name, 0) for name in _ERROR_STATS}
 
 
 class ImuService(Service):
@@ -69,26 +101,21 @@ class ImuService(Service):
                                      MagGlitchFilter(field_T=s["mag_field_nT"] * 1e-9))
         self.driver = self._make_driver()
         self.sample_pub = self.publisher(self.keys.key("imu", self.unit, "sample"), SAMPLE)
-        self.health.set("connected", False)
-        self.health.set("port", s["port"])
         self.health.set("firmware", s["firmware"])
         self.health.set("calibration", calibration.source)
-        self._reported = {name: 0 for name in _ERROR_STATS}
         self._last_seq: int | None = None
         self._text_seen = 0
-        self._thread = threading.Thread(target=self._run, name=f"imu-{self.unit}", daemon=True)
-        self._thread.start()
+        self.silence = SilenceWatch(s["stall_s"])
+        self.supervisor = DeviceSupervisor(
+            RazorDevice(self, self.driver), self.health, self.silence, url=s["port"],
+            backoff=Backoff(FIRST_RETRY_S, max(FIRST_RETRY_S, s["reconnect_max_s"])),
+            tick_s=CHORES_PERIOD_S, stopping=self.stopping).start()
 
     def stop(self) -> None:
         self.stopping.set()
-        thread = getattr(self, "_thread", None)
-        if thread is not None:
-            thread.join(timeout=0.6)
-        driver = getattr(self, "driver", None)
-        if driver is not None:
-            driver.close()          # wakes a reader stuck in a synch wait or a slow read
-        if thread is not None:
-            thread.join(timeout=0.6)
+        supervisor = getattr(self, "supervisor", None)
+        if supervisor is not None:
+            supervisor.stop()
 
     def _make_driver(self) -> SerialImu:
         s = self.settings
@@ -96,65 +123,8 @@ class ImuService(Service):
         kwargs = {"output": s["ahrs_output"]} if cls is RazorAhrs else {}
         return cls(s["port"], s["baudrate"] or None, timeout=0.1, **kwargs)
 
-    # -- the reader thread ---------------------------------------------------------------------
-    def _run(self) -> None:
-        backoff_max = max(0.05, self.settings["reconnect_max_s"])
-        backoff = 0.05
-        opened_before = False
-        failing_since = None
-        while not self.stopping.is_set():
-            try:
-                self.driver.open()
-            except (serial.SerialException, OSError) as exc:
-                if failing_since is None:
-                    failing_since = time.monotonic()
-                    self.log.warning("cannot open %s: %s (retrying)", self.settings["port"], exc)
-                self.health.error("open_failures")
-                self.stopping.wait(backoff)
-                backoff = min(backoff * 2, backoff_max)
-                continue
-            if opened_before:
-                self.health.count("reconnects")
-            after = f" after {time.monotonic() - failing_since:.1f} s" if failing_since else ""
-            self.log.info("%s %s on %s%s", "reopened" if opened_before else "opened",
-                          self.driver.firmware, self.settings["port"], after)
-            opened_before, failing_since, backoff = True, None, 0.05
-            self.health.set("connected", True)
-            try:
-                self._read_until_lost()
-            except (serial.SerialException, OSError) as exc:
-                if not self.stopping.is_set():
-                    self.log.warning("lost %s: %s", self.settings["port"], exc)
-                    self.health.error("disconnects")
-                    failing_since = time.monotonic()
-            except Exception:                  # a bug must not end the service: log, reopen
-                self.log.exception("reader failed; reopening %s", self.settings["port"])
-                self.health.error("internal_errors")
-                self.stopping.wait(backoff_max)
-            finally:
-                self.driver.close()
-                self.builder.mag_filter.reset()
-                self.health.set("connected", False)
-
-    def _read_until_lost(self) -> None:
-        stall_s = self.settings["stall_s"]
-        last_frame = next_chores = time.monotonic()
-        while not self.stopping.is_set():
-            reading = self.driver.read(timeout=0.2)
-            now = time.monotonic()
-            if reading is not None:
-                last_frame = now
-                self._publish(reading)
-            elif now - last_frame > stall_s:
-                self.health.error("stalls")
-                raise serial.SerialException(f"no frame for {stall_s:.0f} s")
-            if now >= next_chores:            # a few times a second, not per frame
-                next_chores = now + CHORES_PERIOD_S
-                self._report_stats()
-                self._log_board_text()
-                self._reload_calibration_if_changed()
-
-    def _publish(self, reading) -> None:
+    # -- what the device hands over ---------------------------------------------------------
+    def publish(self, reading) -> None:
         if self._last_seq is not None and reading.seq > self._last_seq + 1:
             self.health.error("lost_frames", reading.seq - self._last_seq - 1)
         self._last_seq = reading.seq
@@ -164,6 +134,11 @@ class ImuService(Service):
         if self.sample_pub.put(sample):
             self.health.count("samples")
             self.health.mark_sample()
+
+    def chores(self) -> None:
+        """A few times a second, not per frame."""
+        self._log_board_text()
+        self._reload_calibration_if_changed()
 
     # -- calibration file ---------------------------------------------------------------------
     def _file_stamp(self):
@@ -189,14 +164,6 @@ class ImuService(Service):
         self.builder.calibrator = SampleCalibrator(calibration)
         self.health.set("calibration", calibration.source)
         self.log.info("reloaded: %s", how)
-
-    def _report_stats(self) -> None:
-        stats = self.driver.stats
-        for name, reported in self._reported.items():
-            value = getattr(stats, name, 0)
-            if value > reported:
-                self.health.error(name, value - reported)
-                self._reported[name] = value
 
     def _log_board_text(self) -> None:
         """The board's boot text, once per line, in the log."""

@@ -17,7 +17,8 @@ from typing import Callable
 
 import pynmea2
 
-from .link import SerialLink
+from viena.common.link import SerialLink
+from viena.common.link_reader import LinkReader
 
 log = logging.getLogger(__name__)
 
@@ -283,7 +284,8 @@ class NmeaReceiver:
         self._on_link_error = on_link_error
         self._decoder = NmeaDecoder()
         self._fixes: queue.Queue[NmeaFix] = queue.Queue(maxsize=queue_size)
-        self._link = SerialLink(url, self._on_bytes, self._on_error, name="nmea")
+        self._link = SerialLink(url)
+        self._reader = LinkReader(self._link, self._on_bytes, self._on_error, name="nmea")
         self.last_sentence_host_ns = 0
         self.dropped_fixes = 0
 
@@ -296,10 +298,13 @@ class NmeaReceiver:
         return self._link.is_open
 
     def open(self, baudrate: int = 115200) -> None:
+        self._reader.stop()           # an old reader must not see its port close
         self._decoder.reset()
         self._link.open(baudrate)
+        self._reader.start()
 
     def close(self) -> None:
+        self._reader.stop()
         self._link.close()
 
     def __enter__(self) -> "NmeaReceiver":

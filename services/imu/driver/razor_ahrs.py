@@ -235,7 +235,7 @@ class RazorAhrs(SerialImu):
             self.link.write(ERRORS_OFF + mode + STREAM_ON + sync_request(token))
             deadline = time.monotonic() + self.sync_timeout
             while time.monotonic() < deadline:
-                data, t_host = self.link.read_chunk()
+                data, t_host = self.link.read(self.timeout)
                 if data:
                     self._ingest(data, t_host)
                 if self.decoder.synced:

@@ -1,12 +1,13 @@
-"""What both Razor drivers share: open a pyserial URL, decode chunks, stamp and number frames."""
+"""What both Razor drivers share: open a link (any pyserial URL), decode its chunks, stamp
+and number frames. Reading is pulled: `read()` waits on the link in the caller's thread."""
 from __future__ import annotations
 
 import time
 from collections import deque
 from typing import Iterator, NamedTuple
 
+from viena.common.link import SerialLink
 from viena.services.imu.driver.frames import Frame
-from viena.services.imu.driver.link import SerialLink
 from viena.services.imu.driver.timing import CadenceClock
 
 
@@ -29,7 +30,8 @@ class SerialImu:
     def __init__(self, url: str, baudrate: int | None = None, *, timeout: float = 0.1,
                  rate_hz: float | None = None):
         self.url = url
-        self.link = SerialLink(url, baudrate or self.BAUDRATE, timeout)
+        self.timeout = timeout
+        self.link = SerialLink(url, baudrate or self.BAUDRATE)
         self.clock = CadenceClock(1.0 / (rate_hz or self.RATE_HZ))
         self._pending: deque[Reading] = deque()
         self._received = 0          # stream offset: bytes received since open
@@ -68,16 +70,17 @@ class SerialImu:
 
     # -- reading -------------------------------------------------------------------------
     def read(self, timeout: float | None = None) -> Reading | None:
-        """The next frame, waiting up to `timeout` s (default: the port's own timeout);
+        """The next frame, waiting up to `timeout` s (default: the driver's `timeout`);
         None if none came. Raises serial.SerialException when the device is gone."""
         if not self._pending:
-            wait = self.link.timeout if timeout is None else timeout
+            wait = self.timeout if timeout is None else timeout
             deadline = time.monotonic() + wait
             while not self._pending:
-                data, t_host = self.link.read_chunk()
+                left_s = deadline - time.monotonic()
+                data, t_host = self.link.read(max(0.0, min(left_s, self.timeout)))
                 if data:
                     self._ingest(data, t_host)
-                elif time.monotonic() >= deadline:
+                elif left_s <= 0:
                     return None
         return self._pending.popleft()
 

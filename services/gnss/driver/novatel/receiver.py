@@ -23,7 +23,9 @@ from typing import Callable
 
 import serial
 
-from ..link import SerialLink, carries_break
+from viena.common.link import SerialLink
+from viena.common.link_reader import LinkReader
+
 from .commands import (
     BodyError, Com, Command, CommandError, CommandTimeout, DynamicsCommand, Log, Reset,
     Response, SaveConfig, SbasControl, Unlog, Unlogall,
@@ -110,7 +112,8 @@ class NovatelReceiver:
         self._decoder = FrameDecoder(max_body_length)
         self.stats = ReceiverStats()
         self._logs: queue.Queue[LogMessage] = queue.Queue(maxsize=queue_size)
-        self._link = SerialLink(url, self._on_bytes, self._on_error, name="novatel")
+        self._link = SerialLink(url)
+        self._reader = LinkReader(self._link, self._on_bytes, self._on_error, name="novatel")
         self._command_lock = threading.Lock()
         self._pending: _Pending | None = None
         self._state_lock = threading.Lock()
@@ -122,8 +125,10 @@ class NovatelReceiver:
         return self._link.is_open
 
     def open(self, baudrate: int = 9600) -> None:
+        self._reader.stop()           # an old reader must not see its port close
         self._decoder.reset()
         self._link.open(baudrate)
+        self._reader.start()
 
     def close(self) -> None:
         """Close the port; a command waiting for its response gives up at once."""
@@ -131,6 +136,7 @@ class NovatelReceiver:
             pending = self._pending
         if pending is not None:
             pending.event.set()
+        self._reader.stop()
         self._link.close()
 
     def __enter__(self) -> "NovatelReceiver":
@@ -207,7 +213,7 @@ class NovatelReceiver:
             self.open(config.initial_baud)
         else:
             self.set_baud(config.initial_baud)
-        send_break = carries_break(self.url) if config.send_break is None else config.send_break
+        send_break = self._link.carries_break if config.send_break is None else config.send_break
         if send_break:
             self._reset_port_by_break()
         self._unlogall_at(config)
