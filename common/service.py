@@ -19,7 +19,6 @@ import os
 import signal
 import sys
 import threading
-import time
 from typing import Any, Callable
 
 from viena.common.config import merge_settings
@@ -213,13 +212,3 @@ def run_service(cls: type[Service], argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         logging.getLogger(f"viena.{cls.name}").error("config error: %s", exc)
         return 2
-
-
-def wait_until(predicate: Callable[[], bool], timeout: float, period: float = 0.01) -> bool:
-    """Poll `predicate` until true or `timeout` s pass; for tests and start-up waits."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return True
-        time.sleep(period)
-    return bool(predicate())

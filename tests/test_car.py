@@ -5,8 +5,8 @@ import numpy as np
 import pymap3d
 
 from viena.common.rotation import euler_from_quat, euler_to_matrix, quat_from_euler, quat_to_matrix
-from viena.services.sim.car import SimCar
-from viena.services.sim.truth import IST_ORIGIN
+from viena.services.sim.model.car import SimCar
+from viena.services.sim.model.truth import IST_ORIGIN
 
 
 def drive(seconds, dt=0.01):

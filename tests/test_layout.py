@@ -27,9 +27,9 @@ def test_common_and_services_have_one_import_name(module):
 
 def test_the_package_is_the_repository():
     import viena.common.errors
-    import viena.services.gnss.fix
+    import viena.services.gnss.model.fix
 
-    for module in (viena.common.errors, viena.services.gnss.fix):
+    for module in (viena.common.errors, viena.services.gnss.model.fix):
         path = Path(module.__file__).resolve()
         assert path.is_relative_to(REPO) and "site-packages" not in str(module.__file__)
 
@@ -73,3 +73,38 @@ def test_editors_resolve_every_viena_import():
                 unresolved.append(f"{path.relative_to(REPO)}:{line} {name}")
     assert checked > 300
     assert unresolved == []
+
+
+# -- the rooms --------------------------------------------------------------------------------
+DEVICES = ("gnss", "imu", "steering")
+#: what each room of a device service must never import
+FORBIDDEN = {
+    "driver": {"zenoh", "msgpack"},
+    "model": {"zenoh", "msgpack", "socket", "serial", "can", "canopen", "subprocess", "threading", "time"},
+    "simulator": {"zenoh"},
+}
+
+
+def imported_modules(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(), str(path))
+    found = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    found |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module and n.level == 0}
+    return {m.split(".")[0] for m in found} | found
+
+
+@pytest.mark.parametrize("room", sorted(FORBIDDEN))
+def test_each_room_keeps_to_itself(room):
+    """driver: bytes, no zenoh; model: no zenoh and no I/O, no threads, no clock; simulator:
+    the twin, no zenoh. Every device folder has each room."""
+    for device in DEVICES:
+        files = sorted((REPO / "services" / device / room).rglob("*.py"))
+        assert files, f"services/{device} has no {room}/ room"
+        for path in files:
+            assert not imported_modules(path) & FORBIDDEN[room], path.relative_to(REPO)
+
+
+def test_no_service_module_outside_the_rooms_touches_bytes():
+    """Device services are zenoh glue: protocol bytes (struct, crc) stay in the driver."""
+    for device in DEVICES:
+        for path in (REPO / "services" / device).glob("*.py"):
+            assert not imported_modules(path) & {"struct", "zlib", "binascii"}, path.relative_to(REPO)

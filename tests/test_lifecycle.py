@@ -8,7 +8,7 @@ import pytest
 
 from vienatest import collect
 from viena.common.health import HEALTH
-from viena.services.sim.truth import TRUTH
+from viena.services.sim.model.truth import TRUTH
 
 
 def test_help_explains_the_common_flags():

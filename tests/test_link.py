@@ -13,7 +13,7 @@ import serial
 from viena.common.health import CONNECTED, CONNECT_FAILURES, PORT_FAILURES, RECONNECTS, Health
 from viena.common.link import SerialLink
 from viena.common.link_reader import LinkReader
-from viena.common.service import wait_until
+from vienatest import wait_until
 from viena.common.silence import SilenceWatch
 from viena.common.supervisor import Backoff, Device, DeviceSupervisor
 

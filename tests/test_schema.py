@@ -8,8 +8,8 @@ from hypothesis import given, settings, strategies as st
 from viena.common.errors import SampleError
 from viena.common.health import HEALTH
 from viena.common.schema import F, Schema, schema_of
-from viena.services.sim.car import SimCar
-from viena.services.sim.truth import TRUTH, truth_sample
+from viena.services.sim.model.car import SimCar
+from viena.services.sim.model.truth import TRUTH, truth_sample
 
 EXAMPLE = Schema("viena.test.example/1", {
     "t": F.time, "seq": F.int, "x_m": F.float, "v": F.vec(3), "name": F.str,

@@ -21,11 +21,11 @@ from viena.common.config import load_zenoh_config
 from viena.common.health import HEALTH
 from viena.common.rotation import quat_to_matrix
 from viena.services.estimator.state import STATE
-from viena.services.gnss.fix import FIX
-from viena.services.imu.sample import SAMPLE as IMU_SAMPLE
-from viena.services.sim.truth import TRUTH
+from viena.services.gnss.model.fix import FIX
+from viena.services.imu.model.sample import SAMPLE as IMU_SAMPLE
+from viena.services.sim.model.truth import TRUTH
 from viena.services.steering.client import SteeringClient
-from viena.services.steering.state import STATE as STEERING
+from viena.services.steering.model.state import STATE as STEERING
 
 VIENA = [sys.executable, "-m", "viena.cli"]
 LEVER_ARMS = {"gnss0": (-0.5, 1.0, 1.5), "gnss1": (0.5, 1.0, 1.5)}

@@ -6,8 +6,9 @@ import signal
 import subprocess
 import sys
 import time
+from typing import Callable
 
-from viena.common.measure import free_port, wait_for_port  # noqa: F401  (tests import them from here)
+from benchmarks.harness import free_port, wait_for_port  # noqa: F401  (tests import them from here)
 
 PYTHON = sys.executable
 
@@ -59,3 +60,13 @@ def collect(session, keyexpr: str, count: int, timeout: float = 10.0, decode=Non
     finally:
         sub.undeclare()
     return out
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float, period: float = 0.01) -> bool:
+    """Poll `predicate` until true or `timeout` s pass; for tests and start-up waits."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(period)
+    return bool(predicate())

@@ -17,8 +17,7 @@ import sys
 from viena import compose, router, sub
 
 BENCHES = ["sim", "gnss", "imu", "steering", "estimator", "laptop", "security"]
-#: benchmarks of the laptop tools and the network live with the `viena` command
-CLI_BENCHES = {"laptop": "viena.bench_laptop", "security": "viena.bench_security"}
+
 #: commands that live in their own module, each with build_parser(parser) and run(args)
 TOOLS = {
     "monitor": ("viena.monitor", "live dashboard of every service"),
@@ -28,7 +27,7 @@ TOOLS = {
     "plot": ("viena.plot", "a recorded drive as a PNG"),
     "keys": ("viena.keys", "the car's certificates: init, issue, list, zenoh-config"),
 }
-CALIBRATIONS = {"imu": "viena.services.imu.calibration"}
+CALIBRATIONS = {"imu": "viena.services.imu.calibration_cli"}
 
 
 def _profile_arg(p: argparse.ArgumentParser, default: str | None = compose.DEFAULT_PROFILE) -> None:
@@ -118,17 +117,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _bench(args) -> int:
+    """Benchmarks are development tools: they live in the source checkout (benchmarks/),
+    not in what the car installs."""
     status = 0
     for name in args.names or BENCHES:
         if name not in BENCHES:
             print(f"viena bench: unknown benchmark {name!r} (have {', '.join(BENCHES)})", file=sys.stderr)
             return 2
-        module_name = CLI_BENCHES.get(name, f"viena.services.{name}.bench")
         try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError:
-            print(f"# {name}: no benchmark yet")
-            continue
+            module = importlib.import_module(f"benchmarks.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name not in ("benchmarks", f"benchmarks.{name}"):
+                raise
+            print("viena bench: the benchmarks come with the source checkout (benchmarks/); "
+                  "install viena from it with `pip install -e .`", file=sys.stderr)
+            return 2
         print(f"## {name}", flush=True)
         status |= module.main([]) or 0
     return status

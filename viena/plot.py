@@ -20,7 +20,7 @@ import numpy as np
 from viena.common.errors import InputError, SampleError
 from viena.recording import Recording
 
-#: No-solution position the NovAtel receivers send (see services/gnss/fix.py).
+#: No-solution position the NovAtel receivers send (see services/gnss/model/fix.py).
 NO_FIX_ECEF = (100.0, 0.0, 0.0)
 MIN_COURSE_SPEED_MPS = 1.0          # below this a GNSS course over ground is noise
 

@@ -21,7 +21,7 @@ from typing import Iterable
 from viena.common.errors import InputError
 from viena.common.keys import ROOT, Keys
 from viena.common.log import setup_logging
-from viena.common.measure import percentile
+from benchmarks.harness import percentile
 from viena.common.session import stop_on_signals, add_common_arguments, load_settings_file, open_session, zenoh_config
 from viena.recording import KeyFilter, Recorded, Recording
 

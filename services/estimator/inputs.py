@@ -1,6 +1,6 @@
 """What the estimator accepts: IMU samples and GNSS fixes as dicts in the agreed schemas.
 
-viena.imu.sample/1 (services/imu/sample.py) and viena.gnss.fix/1 (services/gnss/fix.py),
+viena.imu.sample/1 (services/imu/model/sample.py) and viena.gnss.fix/1 (services/gnss/model/fix.py),
 only the fields the filter needs, checked here so that nothing non-finite or absurd ever
 reaches it. A rejected input raises `Rejected` with a short reason that the estimator
 counts under that name. Cheap on purpose: this runs for every IMU sample.

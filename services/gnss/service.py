@@ -25,12 +25,12 @@ from viena.common.service import Service, run_service
 from viena.common.silence import SilenceWatch
 from viena.common.supervisor import Backoff, Device, DeviceSupervisor
 
-from .driver.nmea import NmeaReceiver
-from .driver.novatel import (
+from viena.services.gnss.driver.nmea import NmeaReceiver
+from viena.services.gnss.driver.novatel import (
     CommandError, CommandTimeout, Dynamics, LogRequest, MessageId, NovatelReceiver,
     SbasKeyword, SbasSystem, StartupConfig, Trigger,
 )
-from .fix import FIX, NovatelFixBuilder, fix_from_nmea
+from viena.services.gnss.model.fix import FIX, NovatelFixBuilder, fix_from_nmea
 
 USAGE = __doc__
 LOGGED = ("BESTXYZ", "BESTPOS", "BESTVEL")

@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from viena.common.errors import ConfigError, InputError, SampleError
-from viena.services.imu import fitting
-from viena.services.imu.calibration import (DEFAULT_FILE, FIRMWARES, ImuCalibration, SampleCalibrator,
-                                            load_calibration, load_file, save_calibration, to_table,
-                                            dumps)
-from viena.services.imu.fitting import FitError
-from viena.services.imu.glitch import LISBON_FIELD_T, MagGlitchFilter
+from viena.services.imu.model import fitting
+from viena.services.imu.calibration_file import (DEFAULT_FILE, dumps, load_calibration, load_file,
+                                                 save_calibration)
+from viena.services.imu.model.calibration import FIRMWARES, ImuCalibration, SampleCalibrator, to_table
+from viena.services.imu.model.fitting import FitError
+from viena.services.imu.model.glitch import LISBON_FIELD_T, MagGlitchFilter
 from viena.services.imu.recordings import Recording, from_readings, load_recording, save_recording
 
 DEFAULT_SECONDS = {"accel": 90.0, "gyro": 20.0, "mag": 120.0, "record": 60.0}
@@ -268,7 +268,7 @@ def from_port(args, seconds: float) -> Recording:
 def from_zenoh(args, seconds: float) -> Recording:
     from viena.common.keys import Keys
     from viena.common.session import car_name, load_settings_file, open_session, zenoh_config
-    from viena.services.imu.sample import SAMPLE
+    from viena.services.imu.model.sample import SAMPLE
 
     toml = load_settings_file(args)
     key = Keys(car_name(args, toml)).key("imu", args.unit, "sample")

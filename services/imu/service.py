@@ -17,10 +17,11 @@ from viena.common.errors import ConfigError
 from viena.common.service import Service, run_service
 from viena.common.silence import SilenceWatch
 from viena.common.supervisor import Backoff, Device, DeviceSupervisor
-from viena.services.imu.calibration import DEFAULT_FILE, FIRMWARES, SampleCalibrator, load_calibration
+from viena.services.imu.calibration_file import DEFAULT_FILE, load_calibration
+from viena.services.imu.model.calibration import FIRMWARES, SampleCalibrator
 from viena.services.imu.driver import DRIVERS, RazorAhrs, SerialImu
-from viena.services.imu.glitch import MagGlitchFilter
-from viena.services.imu.sample import SAMPLE, SampleBuilder
+from viena.services.imu.model.glitch import MagGlitchFilter
+from viena.services.imu.model.sample import SAMPLE, SampleBuilder
 
 #: decoder counters reported as health errors, by their name in the driver's stats
 _ERROR_STATS = ("crc_errors", "resyncs", "bytes_skipped", "bad_frames")

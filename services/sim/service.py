@@ -11,9 +11,9 @@ import threading
 import time
 
 from viena.common.service import Service, run_service
-from viena.services.sim.car import CarParams, SimCar
+from viena.services.sim.model.car import CarParams, SimCar
 from viena.services.sim.devices import start_devices
-from viena.services.sim.truth import IST_ORIGIN, TRUTH, truth_sample
+from viena.services.sim.model.truth import IST_ORIGIN, TRUTH, truth_sample
 
 
 class SimService(Service):

@@ -26,15 +26,15 @@ import threading
 import time
 from typing import Callable
 
-from viena.services.steering.actions import (JOBS, Command, Configure, Connect, Cycle, DriveReading, Reply,
+from viena.services.steering.model.actions import (JOBS, Command, Configure, Connect, Cycle, DriveReading, Reply,
                                              SendTarget, WriteLimits)
-from viena.services.steering.calibration import Calibration, CalibrationSettings
-from viena.services.steering.core import ControllerSettings, Phase, SteeringCore
+from viena.services.steering.model.calibration import Calibration, CalibrationSettings
+from viena.services.steering.model.core import ControllerSettings, Phase, SteeringCore
 from viena.services.steering.driver.emcy import Emcy
 from viena.services.steering.driver.epos import DriveError, EposDrive
-from viena.services.steering.requests import Request, parse_request
-from viena.services.steering.safety import REJECTED, Envelope
-from viena.services.steering.state import sample
+from viena.services.steering.model.requests import Request, parse_request
+from viena.services.steering.model.safety import REJECTED, Envelope
+from viena.services.steering.model.state import sample
 
 __all__ = ["ControllerSettings", "Phase", "SteeringController"]
 

@@ -23,11 +23,11 @@ import zenoh
 from viena.common.errors import PayloadError
 from viena.common.payload import parse_payload, reply_bytes
 from viena.common.service import Service, run_service
-from viena.services.steering.calibration import CalibrationSettings
+from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.controller import ControllerSettings, SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
-from viena.services.steering.safety import REJECTED, Envelope, SafetySettings
-from viena.services.steering.state import STATE
+from viena.services.steering.model.safety import REJECTED, Envelope, SafetySettings
+from viena.services.steering.model.state import STATE
 
 
 class SteeringService(Service):

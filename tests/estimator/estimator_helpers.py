@@ -8,7 +8,7 @@ import numpy as np
 
 from viena.common.rotation import euler_from_quat, wrap_angle
 from viena.services.estimator.estimator import Estimator
-from viena.services.estimator.simdrive import Drive, DriveSamples
+from benchmarks.simdrive import Drive, DriveSamples
 from viena.services.estimator.state import STATE
 
 

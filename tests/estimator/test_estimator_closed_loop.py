@@ -18,8 +18,8 @@ import math
 import numpy as np
 import pytest
 
-from viena.services.estimator.simdrive import Drive
-from viena.services.sim.car import CarParams
+from benchmarks.simdrive import Drive
+from viena.services.sim.model.car import CarParams
 
 from estimator_helpers import deg, generate, run, settings_for, without_mag
 

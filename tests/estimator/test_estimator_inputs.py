@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from viena.services.estimator.estimator import Estimator
-from viena.services.estimator.simdrive import Drive
+from benchmarks.simdrive import Drive
 from viena.services.estimator.state import STATE
 
 from estimator_helpers import generate, settings_for

@@ -12,12 +12,12 @@ import pytest
 import zenoh
 
 from viena.common.health import HEALTH
-from viena.common.service import wait_until
+from vienatest import wait_until
 from viena.services.estimator.navigation import bearing_distance
-from viena.services.estimator.simdrive import Drive
+from benchmarks.simdrive import Drive
 from viena.services.estimator.state import STATE
-from viena.services.gnss.fix import FIX
-from viena.services.imu.sample import SAMPLE
+from viena.services.gnss.model.fix import FIX
+from viena.services.imu.model.sample import SAMPLE
 
 from estimator_helpers import generate
 

@@ -12,7 +12,7 @@ import pymap3d
 
 from viena.services.gnss.driver.novatel import FrameDecoder, Response, decode_log
 from viena.services.gnss.simulator.serve import parked_truth
-from viena.services.sim.truth import IST_ORIGIN
+from viena.services.sim.model.truth import IST_ORIGIN
 
 REPO = Path(__file__).resolve().parents[2]
 SHARED_CSV = REPO.parent / "shared" / "data" / "gnss" / "novatel_bestxyz_drive_2016-06-01.csv"

@@ -11,8 +11,8 @@ import pytest
 
 from vienatest import collect, free_port
 from viena.common.rotation import quat_to_matrix
-from viena.services.gnss.fix import FIX
-from viena.services.sim.truth import TRUTH
+from viena.services.gnss.model.fix import FIX
+from viena.services.sim.model.truth import TRUTH
 
 LEVER_ARMS = {"gnss0": (-0.5, 1.0, 1.5), "gnss1": (0.5, 1.0, 1.5)}
 

@@ -11,7 +11,7 @@ from viena.services.gnss.driver.nmea import NmeaFix
 from viena.services.gnss.driver.novatel import (
     BestPos, BestVel, BestXyz, Header, LogMessage, PositionType, SolutionStatus,
 )
-from viena.services.gnss.fix import FIX, NovatelFixBuilder, fix_from_bestxyz, fix_from_nmea
+from viena.services.gnss.model.fix import FIX, NovatelFixBuilder, fix_from_bestxyz, fix_from_nmea
 
 WEEK, MS = 1899, 296_450_300
 T_HOST = gps_to_utc_ns(WEEK, MS) + 30_000_000

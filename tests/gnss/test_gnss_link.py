@@ -15,9 +15,9 @@ from viena.services.gnss.driver.novatel import (
     CommandError, CommandTimeout, MessageId, NovatelReceiver, ResponseId, StartupConfig,
     Trigger,
 )
-from viena.services.gnss.fix import fix_from_bestxyz, fix_from_nmea
+from viena.services.gnss.model.fix import fix_from_bestxyz, fix_from_nmea
 from viena.services.gnss.simulator import NovatelTwin
-from viena.services.sim.twin import SerialEndpoint
+from viena.common.twin.serial_port import SerialEndpoint
 
 pytestmark = pytest.mark.timeout(60)
 

@@ -14,9 +14,9 @@ import pytest
 from vienatest import Processes, collect, free_port, wait_for_port
 from gnss_helpers import ORIGIN_ECEF, still
 from viena.common.health import HEALTH
-from viena.services.gnss.fix import FIX
+from viena.services.gnss.model.fix import FIX
 from viena.services.gnss.simulator import NmeaTwin, NovatelTwin
-from viena.services.sim.twin import SerialEndpoint, TwinWrapper
+from viena.common.twin.serial_port import SerialEndpoint, TwinWrapper
 
 pytestmark = pytest.mark.timeout(90)
 

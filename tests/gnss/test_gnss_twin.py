@@ -15,10 +15,10 @@ from viena.services.gnss.driver.novatel import (
     Com, DynamicsCommand, Header, Log, MessageId, Port, Reset, ResponseId, SaveConfig,
     SbasControl, SbasKeyword, Trigger, Unlog, Unlogall, encode_frame,
 )
-from viena.services.gnss.fix import fix_from_bestpos, fix_from_bestxyz, fix_from_nmea
+from viena.services.gnss.model.fix import fix_from_bestpos, fix_from_bestxyz, fix_from_nmea
 from viena.services.gnss.simulator import NmeaTwin, NovatelTwin
 from viena.services.gnss.simulator.errors import CEP_PER_SIGMA, GnssErrorModel
-from viena.services.sim.truth import IST_ORIGIN
+from viena.services.sim.model.truth import IST_ORIGIN
 
 
 def novatel(**kw) -> TwinHarness:

@@ -10,7 +10,7 @@ import pytest
 from viena.services.imu.driver import AhrsDecoder, RazorAhrs, SyncError
 from viena.services.imu.driver.razor_ahrs import from_board, sync_reply, to_board
 from viena.services.imu.simulator import RazorAhrsTwin, RazorBoard
-from viena.services.sim.twin import SerialEndpoint
+from viena.common.twin.serial_port import SerialEndpoint
 
 from viena.services.imu.simulator.scenarios import fixed_truth
 

@@ -9,11 +9,11 @@ import time
 import numpy as np
 
 from viena.common.health import HEALTH
-from viena.common.service import wait_until
+from vienatest import wait_until
 from viena.services.imu.driver import encode_frame
-from viena.services.imu.sample import SAMPLE
+from viena.services.imu.model.sample import SAMPLE
 from viena.services.imu.simulator import RazorAhrsTwin, RazorTwin
-from viena.services.sim.twin import SerialEndpoint
+from viena.common.twin.serial_port import SerialEndpoint
 
 from viena.services.imu.simulator.scenarios import fixed_truth
 

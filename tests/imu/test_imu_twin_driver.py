@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from viena.services.imu.calibration import SampleCalibrator, seed_calibration
+from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
 from viena.services.imu.driver import Razor, encode_frame
 from viena.services.imu.simulator import BANNER, RazorTwin
-from viena.services.sim.twin import SerialEndpoint
+from viena.common.twin.serial_port import SerialEndpoint
 
 from viena.services.imu.simulator.scenarios import fixed_truth
 

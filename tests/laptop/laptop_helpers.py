@@ -62,8 +62,8 @@ def write_drive(path: Path, seconds: float = 20.0, seed: int = 3) -> dict:
     """A drive recorded as viena record would have written it, made offline from the
     simulated car: truth at 100 Hz, a GNSS fix at 10 Hz (some without a solution), an
     estimator state and a steering state at 20 Hz. Returns what was written, by key."""
-    from viena.services.sim.car import CarParams, SimCar
-    from viena.services.sim.truth import truth_sample
+    from viena.services.sim.model.car import CarParams, SimCar
+    from viena.services.sim.model.truth import truth_sample
 
     rng = np.random.default_rng(seed)
     car = SimCar(CarParams(parked_s=1.0), start_time_ns=1_717_236_000_000_000_000)
@@ -107,7 +107,7 @@ def _fix(truth, rng, seq: int) -> dict:
 
 
 def _steering(truth, seq: int) -> dict:
-    """Shaped like viena.steering.state/1 (services/steering/state.py): angles in degrees."""
+    """Shaped like viena.steering.state/1 (services/steering/model/state.py): angles in degrees."""
     angle = math.degrees(truth.wheel_angle_rad)
     return {"t": truth.t_ns, "seq": seq, "phase": "armed", "armed": True, "owner": "3f2a9c1b7d4e",
             "angle_deg": angle, "angle_qc": int(angle * 1000), "target_deg": angle + 0.5,

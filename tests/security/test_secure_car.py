@@ -21,9 +21,9 @@ from viena.common.config import load_zenoh_config
 from viena.common.health import HEALTH
 from viena.common.secure import secure_client
 from viena.services.estimator.state import STATE
-from viena.services.gnss.fix import FIX
+from viena.services.gnss.model.fix import FIX
 from viena.services.steering.client import SteeringClient
-from viena.services.steering.state import STATE as STEERING
+from viena.services.steering.model.state import STATE as STEERING
 
 VIENA = [sys.executable, "-m", "viena.cli"]
 CAR = "viena/elettra"

@@ -12,7 +12,7 @@ import pytest
 
 from steering_helpers import SimClock
 from viena.services.steering.driver import DriveSettings, EposDrive
-from viena.services.steering.simulator.twin import EposTwin, TwinSettings
+from viena.services.steering.simulator.epos_twin import EposTwin, TwinSettings
 
 _channels = itertools.count()
 

@@ -14,11 +14,11 @@ import threading
 
 import canopen
 
-from viena.services.steering.calibration import CalibrationSettings
+from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.controller import ControllerSettings, SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
-from viena.services.steering.safety import Envelope
-from viena.services.steering.simulator.twin import EposTwin, TwinSettings
+from viena.services.steering.model.safety import Envelope
+from viena.services.steering.simulator.epos_twin import EposTwin, TwinSettings
 
 _channels = itertools.count()
 WALL_NS_AT_0 = 1_700_000_000_000_000_000

@@ -8,7 +8,7 @@ import time
 import can
 import pytest
 
-from viena.services.sim.slcan_hub import SlcanHub, format_frame, parse_frame
+from viena.common.twin.slcan_hub import SlcanHub, format_frame, parse_frame
 
 _n = itertools.count()
 

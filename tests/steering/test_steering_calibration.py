@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from viena.services.steering.calibration import (Calibration, CalibrationRefused, CalibrationSettings,
+from viena.services.steering.model.calibration import (Calibration, CalibrationRefused, CalibrationSettings,
                                                  SweepRecorder, check_calibration, read_calibration_txt,
                                                  zero_ref)
 

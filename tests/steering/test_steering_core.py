@@ -14,17 +14,17 @@ from pathlib import Path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from viena.services.steering.actions import (Command, Configure, Connect, Cycle, DriveReading, Reply,
+from viena.services.steering.model.actions import (Command, Configure, Connect, Cycle, DriveReading, Reply,
                                              SendTarget, WriteLimits)
-from viena.services.steering.calibration import CalibrationSettings
-from viena.services.steering.core import ControllerSettings, Phase, SteeringCore
+from viena.services.steering.model.calibration import CalibrationSettings
+from viena.services.steering.model.core import ControllerSettings, Phase, SteeringCore
 from viena.services.steering.driver import Emcy, ds402
 from viena.services.steering.driver.epos import NMT_OPERATIONAL, POSITION_MODE, Feedback
-from viena.services.steering.requests import parse_request
-from viena.services.steering.safety import Envelope
-from viena.services.steering.state import sample
+from viena.services.steering.model.requests import parse_request
+from viena.services.steering.model.safety import Envelope
+from viena.services.steering.model.state import sample
 
-STEERING = Path(__file__).resolve().parents[2] / "services/steering"
+STEERING = Path(__file__).resolve().parents[2] / "services/steering/model"
 WALL_NS = 1_700_000_000_000_000_000
 HOLD_S = ControllerSettings().quickstop_hold_s
 SW = ds402.EPOS_STATUSWORD

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from viena.services.steering.requests import (Arm, BadSetpoint, CalibrationRequest, Disarm, Estop, Refused,
+from viena.services.steering.model.requests import (Arm, BadSetpoint, CalibrationRequest, Disarm, Estop, Refused,
                                               Setpoint, parse_request)
 
 

@@ -9,8 +9,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from viena.services.steering.requests import parse_setpoint
-from viena.services.steering.safety import (ACCEPTED, CLAMPED, REJECTED, DecisionLog, Envelope,
+from viena.services.steering.model.requests import parse_setpoint
+from viena.services.steering.model.safety import (ACCEPTED, CLAMPED, REJECTED, DecisionLog, Envelope,
                                             SafetySettings, lease_hash)
 
 RANGE = (-29.0, 29.0)

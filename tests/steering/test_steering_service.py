@@ -11,11 +11,11 @@ import time
 import msgpack
 import pytest
 
-from viena.common.service import wait_until
+from vienatest import wait_until
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import LIFE_GUARD_ERROR
 from viena.services.steering.simulator import TwinSettings, start_twin_on_hub
-from viena.services.steering.state import STATE
+from viena.services.steering.model.state import STATE
 
 KEY = "viena/elettra/steering"
 

@@ -7,12 +7,12 @@ import types
 import pytest
 
 from viena.common.errors import ConfigError
-from viena.common.service import wait_until
-from viena.services.sim.car import SimCar
-from viena.services.steering.calibration import CalibrationSettings
+from vienatest import wait_until
+from viena.services.sim.model.car import SimCar
+from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.controller import SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
-from viena.services.steering.safety import Envelope
+from viena.services.steering.model.safety import Envelope
 from viena.services.steering.simulator import make_epos_device
 
 FAST = {"sweep_speed_qc_s": 400_000.0, "sweep_delay_s": 0.1, "sweep_hold_s": 0.05}
@@ -66,7 +66,7 @@ def test_a_setpoint_over_slcan_turns_the_simulated_car(device):
 
 
 def test_the_controller_reconnects_when_the_adapter_comes_back(device):
-    from viena.services.sim.slcan_hub import SlcanHub
+    from viena.common.twin.slcan_hub import SlcanHub
     dev, car = device
     drive = EposDrive(DriveSettings(interface="slcan", channel=dev.url,
                                     bus_options={"sleep_after_open": 0, "timeout": 0.01}))

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from viena.common.config import merge_settings
 from viena.common.errors import ConfigError
-from viena.services.sim.twin import SerialEndpoint
+from viena.common.twin.serial_port import SerialEndpoint
 
 from .errors import GnssErrorModel, SkyModel
 from .nmea_twin import NmeaTwin

@@ -16,7 +16,7 @@ import numpy as np
 import pynmea2
 
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns
-from viena.services.sim.twin import ByteTwin
+from viena.common.twin.serial_port import ByteTwin
 
 from .clock import WEEK_MS, GpsClock
 from .errors import GnssErrorModel, SkyModel

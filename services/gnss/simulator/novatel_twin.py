@@ -40,7 +40,7 @@ from viena.services.gnss.driver.novatel.framing import (
     encode_frame, unpack_header,
 )
 from viena.services.gnss.driver.novatel.logs import BestPos, BestVel, BestXyz
-from viena.services.sim.twin import ByteTwin
+from viena.common.twin.serial_port import ByteTwin
 
 from .clock import WEEK_MS, GpsClock
 from .errors import GnssErrorModel, SkyModel

@@ -1,4 +1,4 @@
-"""Twins of the Razor IMU for the simulated car (they plug into viena.services.sim.twin).
+"""Twins of the Razor IMU for the simulated car (they plug into viena.common.twin.serial_port).
 
     twin = RazorTwin(car.truth)                          # VIENA firmware, seed figures
     twin = RazorAhrsTwin(car.truth)                      # stock Razor AHRS firmware
@@ -7,7 +7,7 @@
 """
 from viena.common.config import merge_settings
 from viena.common.errors import ConfigError
-from viena.services.sim.twin import SerialEndpoint
+from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.imu.simulator.board import LISBON_FIELD_ENU_NT, Measurement, RazorBoard
 from viena.services.imu.simulator.razor_ahrs_twin import RazorAhrsTwin
 from viena.services.imu.simulator.razor_twin import BANNER, RazorReplayTwin, RazorTwin

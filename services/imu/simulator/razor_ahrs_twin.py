@@ -14,7 +14,7 @@ import numpy as np
 
 from viena.services.imu.driver.razor_ahrs import DEFAULT_MAGN_SCALE, from_board, sync_reply
 from viena.services.imu.simulator.board import RazorBoard
-from viena.services.sim.twin import ByteTwin
+from viena.common.twin.serial_port import ByteTwin
 
 RATE_HZ = 50.0
 _SENSOR_MODES = {b"r": "raw", b"c": "calibrated", b"b": "both"}

@@ -12,7 +12,7 @@ import numpy as np
 from viena.services.imu.driver.frames import encode_frame
 from viena.services.imu.recordings import Recording, load_parked, load_recording
 from viena.services.imu.simulator.board import RazorBoard
-from viena.services.sim.twin import ByteTwin
+from viena.common.twin.serial_port import ByteTwin
 
 #: what the firmware prints at boot (VIENA-IST/AHRS src/main.cpp), Serial.println: CR LF
 BANNER = ("Initializing I2C devices...", "Testing device connections...",

@@ -19,7 +19,7 @@ from viena.common.rotation import quat_from_euler, quat_to_matrix
 from viena.services.imu.driver.frames import FrameDecoder
 from viena.services.imu.recordings import Recording
 from viena.common.geodesy import normal_gravity
-from viena.services.sim.truth import IST_ORIGIN, Truth
+from viena.services.sim.model.truth import IST_ORIGIN, Truth
 
 #: attitude (yaw, pitch, roll) that puts each body axis up: '+x' reads +1 g on x
 POSE_EULER = {"+z": (0.0, 0.0, 0.0), "-z": (0.0, 0.0, math.pi),

@@ -5,7 +5,7 @@
     port = 0                    # the slcan adapter's TCP port (0 = any free port)
 
 The sim runs the twin on an in-process python-can `virtual` channel and serves that bus as
-a serial CAN adapter (services/sim/slcan_hub.py); the steering service opens it with
+a serial CAN adapter (common/twin/slcan_hub.py); the steering service opens it with
 `interface = "slcan"`, `channel = "socket://127.0.0.1:PORT"`. The twin turns the car's
 wheels through `car.set_wheel_source`.
 """
@@ -19,9 +19,9 @@ from dataclasses import fields
 import canopen
 
 from viena.common.errors import ConfigError
-from viena.services.sim.slcan_hub import SlcanHub
+from viena.common.twin.slcan_hub import SlcanHub
 from viena.services.steering.simulator.plant import CHIRP005, TRAJ01, PlantParams, PositionPlant
-from viena.services.steering.simulator.twin import EposTwin, TwinSettings
+from viena.services.steering.simulator.epos_twin import EposTwin, TwinSettings
 
 __all__ = ["EposDevice", "EposTwin", "PlantParams", "PositionPlant", "TwinSettings",
            "make_epos_device", "start_twin_on_hub"]

@@ -17,20 +17,14 @@ and the log says so.
 from __future__ import annotations
 
 import dataclasses
-import datetime as dt
-import json
 import math
-import os
-import tempfile
-import tomllib
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from viena.common.errors import ConfigError
 from viena.services.imu.driver.razor_ahrs import ACCEL_PER_G, DEFAULT_MAGN_SCALE
-from viena.services.imu.fitting import AccelFit, GyroBiasFit, MagFit, ellipse_c_inv
+from viena.services.imu.model.fitting import AccelFit, GyroBiasFit, MagFit, ellipse_c_inv
 
 STANDARD_GRAVITY = 9.80665                     # m/s^2 per g
 #: HMC5843 at the gain its i2cdevlib driver sets (1.0 Ga range): 1300 counts per gauss
@@ -44,9 +38,6 @@ TABLE_5_3_OFFSET_LSB = (13.83, -3.18, -3.47)
 TABLE_5_4_OFFSET_NT = (-25828.0, -21703.0)
 TABLE_5_4_ALPHA_DEG = 107.5238
 TABLE_5_4_AXIS_RATIO = 0.9567
-
-DEFAULT_FILE = Path(os.environ.get("VIENA_CONFIG_DIR", "~/.config/viena")).expanduser() / "imu_calibration.toml"
-
 
 def _vec(v) -> tuple:
     return tuple(float(x) for x in v)
@@ -215,102 +206,3 @@ def from_table(table: dict, where: str, source: str) -> ImuCalibration:
     except (TypeError, ValueError, AttributeError) as exc:
         raise ConfigError(f"{where}: {exc}") from None
     return cal.validate(where)
-
-
-def load_file(path: str | Path) -> dict:
-    path = Path(path)
-    try:
-        with path.open("rb") as f:
-            return tomllib.load(f)
-    except FileNotFoundError:
-        return {}
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: {exc}") from None
-
-
-def load_calibration(path: str | Path | None, unit: str, firmware: str = "viena") -> tuple[ImuCalibration, str]:
-    """The unit's calibration and one line saying where it came from (for the log).
-    A missing file or unit gives the seed's values; a broken one is a ConfigError."""
-    if path is None:
-        return seed_calibration(firmware), f"{unit}: no calibration file given: using the seed's values"
-    path = Path(path)
-    tables = load_file(path)
-    if unit not in tables:
-        why = "no such file" if not path.exists() else f"no [{unit}] table"
-        return seed_calibration(firmware), f"{unit}: {path}: {why}: using the seed's values (tables 5.3, 5.4)"
-    cal = from_table(tables[unit], f"{path} [{unit}]", str(path))
-    if cal.firmware != firmware:
-        raise ConfigError(f"{path} [{unit}]: calibrated for firmware {cal.firmware!r}, "
-                          f"but the unit runs {firmware!r}")
-    return cal, f"{unit}: calibration from {path} (updated {cal.updated or 'unknown'})"
-
-
-def save_calibration(path: str | Path, unit: str, cal: ImuCalibration) -> ImuCalibration:
-    """Write the unit's table, keeping the other units; atomic (temp file + rename)."""
-    path = Path(path)
-    cal = dataclasses.replace(cal.validate(f"{unit}"), source=str(path),
-                              updated=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"))
-    tables = load_file(path)
-    tables[unit] = to_table(cal)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name, dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        f.write(dumps(tables))
-    os.replace(tmp, path)
-    return cal
-
-
-HEADER = """\
-# viena IMU calibration: one table per unit, written by `viena calibrate imu`.
-# accel (seed 5.5.1.2), per axis x y z: LSB = gain * a[g] + offset; the firmware sends
-#   (LSB - eeprom_offset) / eeprom_gain, which the host undoes first.
-# gyro: rate = frame - bias_dps.
-# mag (seed eq. 5.16): H_c = c_inv (H_s - offset); tesla = tesla_per_unit * H_c.
-"""
-
-
-def dumps(tables: dict, header: bool = True) -> str:
-    """TOML for our calibration tables: vectors on one line, the model in a comment."""
-    lines = [HEADER] if header else []
-
-    def emit(prefix: str, table: dict) -> None:
-        scalars = {k: v for k, v in table.items() if not isinstance(v, dict)}
-        subs = {k: v for k, v in table.items() if isinstance(v, dict)}
-        if scalars or not subs:
-            lines.append(f"[{prefix}]")
-            lines.extend(f"{_key(k)} = {_toml(v)}" for k, v in scalars.items())
-            lines.append("")
-        for k, v in subs.items():
-            emit(f"{prefix}.{_key(k)}", v)
-
-    for unit, table in tables.items():
-        emit(_key(unit), table)
-    return "\n".join(lines)
-
-
-def _key(k: str) -> str:
-    return k if k.replace("_", "").replace("-", "").isalnum() else json.dumps(k)
-
-
-def _toml(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            raise ValueError(f"{v} cannot be stored")
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{_key(k)} = {_toml(x)}" for k, x in v.items()) + "}"
-    raise ValueError(f"cannot store {v!r} in TOML")
-
-
-def main(argv: list[str] | None = None) -> int:
-    """`viena calibrate imu`: see viena.services.imu.calibration_cli."""
-    from viena.services.imu.calibration_cli import main as cli_main
-    return cli_main(argv)

@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING
 from viena.common.schema import F, Schema
 
 if TYPE_CHECKING:                     # the schema alone must not pull in the CAN stack
-    from viena.services.steering.actions import DriveReading
-    from viena.services.steering.core import SteeringCore
+    from viena.services.steering.model.actions import DriveReading
+    from viena.services.steering.model.core import SteeringCore
 
 STATE = Schema("viena.steering.state/1", {
     "t": F.time,

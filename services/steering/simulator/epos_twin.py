@@ -32,7 +32,7 @@ from typing import Callable
 import canopen
 from canopen.sdo import SdoAbortedError
 
-from viena.services.steering.calibration import SLOPE_DEG_PER_QC
+from viena.services.steering.model.calibration import SLOPE_DEG_PER_QC
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import (ERROR_REGISTER, FOLLOWING_ERROR, LIFE_GUARD_ERROR,
                                                  SOFTWARE_POSITION_LIMIT_ERROR, emcy_name)

@@ -6,9 +6,9 @@ firmware sent, unchanged, so the unit can be re-calibrated from any recording.
 from __future__ import annotations
 
 from viena.common.schema import F, Schema
-from viena.services.imu.calibration import SampleCalibrator
+from viena.services.imu.model.calibration import SampleCalibrator
 from viena.services.imu.driver import Reading
-from viena.services.imu.glitch import MagGlitchFilter
+from viena.services.imu.model.glitch import MagGlitchFilter
 
 SAMPLE = Schema("viena.imu.sample/1", {
     "t": F.time,                       # acquisition time, int ns UTC (estimated, see driver.timing)

@@ -27,7 +27,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from viena.common.config import load_zenoh_config
-from viena.common.measure import cpu_seconds, percentile
+from benchmarks.harness import cpu_seconds, percentile
 from viena.common.secure import secure_client
 from viena.keys import main as keys_main
 
@@ -127,7 +127,7 @@ def setpoint_round_trips(env: dict, endpoint: str, count: int) -> list[float]:
 
 def one_hop(work: Path, rounds: int, samples: int) -> dict[str, list[float]]:
     """Latency of one router hop at 100 Hz, per link, rounds alternating."""
-    from viena.common.measure import free_port, processes, wait_for_port
+    from benchmarks.harness import free_port, processes, wait_for_port
 
     keys = str(work / "keys")
     if not (work / "keys").exists():

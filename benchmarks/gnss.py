@@ -16,14 +16,14 @@ import time
 
 
 from viena.common.config import load_zenoh_config
-from viena.common.measure import cpu_share, percentile, processes, start_router
+from benchmarks.harness import cpu_share, percentile, processes, start_router
 from viena.services.gnss.driver.novatel import (
     BestXyz, FrameDecoder, Header, PositionType, SolutionStatus, decode_log, encode_log,
 )
-from viena.services.gnss.fix import FIX, fix_from_bestxyz
+from viena.services.gnss.model.fix import FIX, fix_from_bestxyz
 from viena.services.gnss.simulator import NovatelTwin
 from viena.services.gnss.simulator.serve import parked_truth
-from viena.services.sim.twin import SerialEndpoint, TwinWrapper
+from viena.common.twin.serial_port import SerialEndpoint, TwinWrapper
 
 WEEK_MS = 604_800_000
 T_HOST_NS = 1_700_000_000_000_000_000

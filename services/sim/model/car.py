@@ -15,9 +15,9 @@ from typing import Callable
 import numpy as np
 
 from viena.common.rotation import quat_from_euler
-from viena.services.sim.route import Route, default_route
+from viena.services.sim.model.route import Route, default_route
 from viena.common.geodesy import normal_gravity
-from viena.services.sim.truth import IST_ORIGIN, Truth
+from viena.services.sim.model.truth import IST_ORIGIN, Truth
 
 
 @dataclass

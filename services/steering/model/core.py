@@ -25,18 +25,18 @@ import logging
 from dataclasses import dataclass
 from enum import Enum
 
-from viena.services.steering.actions import (Command, Configure, Connect, Cycle, DriveReading, Reply,
+from viena.services.steering.model.actions import (Command, Configure, Connect, Cycle, DriveReading, Reply,
                                              SendTarget, WriteLimits)
-from viena.services.steering.arming import ArmSequence
-from viena.services.steering.calibration import (Calibration, CalibrationRefused, CalibrationSettings,
+from viena.services.steering.model.arming import ArmSequence
+from viena.services.steering.model.calibration import (Calibration, CalibrationRefused, CalibrationSettings,
                                                  SweepRecorder)
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import Emcy
 from viena.services.steering.driver.epos import POSITION_MODE, DriveSettings, Feedback
-from viena.services.steering.requests import (Arm, BadSetpoint, CalibrationRequest, Disarm, Estop,
+from viena.services.steering.model.requests import (Arm, BadSetpoint, CalibrationRequest, Disarm, Estop,
                                               Refused, Request, Setpoint)
-from viena.services.steering.safety import ACCEPTED, REJECTED, Envelope
-from viena.services.steering.supervision import Backoff, DriveWatch
+from viena.services.steering.model.safety import ACCEPTED, REJECTED, Envelope
+from viena.services.steering.model.supervision import Backoff, DriveWatch
 
 log = logging.getLogger("viena.steering")
 

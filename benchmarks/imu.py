@@ -15,10 +15,10 @@ import time
 
 import numpy as np
 
-from viena.services.imu.calibration import SampleCalibrator, seed_calibration
+from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
 from viena.services.imu.driver import FrameDecoder, Razor, Reading, encode_frame
 from viena.services.imu.driver.frames import decode_frame
-from viena.services.imu.sample import SAMPLE, SampleBuilder
+from viena.services.imu.model.sample import SAMPLE, SampleBuilder
 
 
 def _frames(n: int) -> bytes:
@@ -66,10 +66,10 @@ def bench_service(seconds: float) -> dict:
     import zenoh
 
     from viena.common.config import load_zenoh_config
-    from viena.common.measure import cpu_seconds, percentile, processes, start_router
+    from benchmarks.harness import cpu_seconds, percentile, processes, start_router
     from viena.services.imu.simulator import RazorTwin
     from viena.services.imu.simulator.scenarios import fixed_truth
-    from viena.services.sim.twin import SerialEndpoint
+    from viena.common.twin.serial_port import SerialEndpoint
 
     sent: dict[bytes, int] = {}
 

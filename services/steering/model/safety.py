@@ -27,7 +27,7 @@ import math
 import secrets
 from dataclasses import dataclass, field
 
-from viena.services.steering.requests import BadSetpoint, Setpoint
+from viena.services.steering.model.requests import BadSetpoint, Setpoint
 
 log = logging.getLogger("viena.steering.safety")
 

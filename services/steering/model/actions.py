@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from viena.services.steering.calibration import Calibration
+from viena.services.steering.model.calibration import Calibration
 from viena.services.steering.driver.epos import Feedback
 
 

@@ -20,9 +20,9 @@ from viena.common.geodesy import geodetic_of_ecef
 
 from viena.common.schema import F, Schema
 
-from .driver.gpstime import gps_to_utc_ns, utc_to_gps
-from .driver.nmea import NmeaFix
-from .driver.novatel import BestPos, BestVel, BestXyz, LogMessage, MessageId, TimeStatus
+from viena.services.gnss.driver.gpstime import gps_to_utc_ns, utc_to_gps
+from viena.services.gnss.driver.nmea import NmeaFix
+from viena.services.gnss.driver.novatel import BestPos, BestVel, BestXyz, LogMessage, MessageId, TimeStatus
 
 FIX = Schema("viena.gnss.fix/1", {
     "t": F.time,                        # epoch, UTC ns (GPS time, leap seconds applied)

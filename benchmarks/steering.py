@@ -20,7 +20,7 @@ import json
 import threading
 import time
 
-from viena.common.measure import cpu_share, free_port, percentile, processes, start_router, wait_for_port
+from benchmarks.harness import cpu_share, free_port, percentile, processes, start_router, wait_for_port
 from viena.services.steering.driver import ds402
 
 KEY = "viena/elettra/steering"

@@ -17,7 +17,7 @@ import logging
 from dataclasses import dataclass
 from enum import Enum
 
-from viena.services.steering.actions import Command, SendTarget
+from viena.services.steering.model.actions import Command, SendTarget
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.epos import Feedback
 

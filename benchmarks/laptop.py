@@ -30,7 +30,7 @@ import msgpack
 
 from viena.common.config import load_zenoh_config
 from viena.common.keys import Keys
-from viena.common.measure import cpu_share, percentile, processes, start_router
+from benchmarks.harness import cpu_share, percentile, processes, start_router
 from viena.recording import Recording, RecordingWriter
 
 CAR = "bench"
@@ -49,8 +49,8 @@ CAR_RATE_HZ = sum(rate for _, rate, _, _ in STREAMS)
 
 def _samples(kind: str) -> dict:
     """One sample of each kind, with the fields (and so the size) of the real thing."""
-    from viena.services.sim.car import SimCar
-    from viena.services.sim.truth import truth_sample
+    from viena.services.sim.model.car import SimCar
+    from viena.services.sim.model.truth import truth_sample
 
     truth = truth_sample(SimCar().step(0.01))
     v3 = [0.1, -0.2, 9.81]

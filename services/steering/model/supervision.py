@@ -6,7 +6,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-from viena.services.steering.actions import DriveReading
+from viena.services.steering.model.actions import DriveReading
 from viena.services.steering.driver.epos import NMT_OPERATIONAL, DriveSettings
 
 log = logging.getLogger("viena.steering")

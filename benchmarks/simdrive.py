@@ -24,8 +24,8 @@ import numpy as np
 import pymap3d
 
 from viena.services.gnss.driver.gpstime import utc_to_gps
-from viena.services.sim.car import CarParams, SimCar
-from viena.services.sim.truth import Truth
+from viena.services.sim.model.car import CarParams, SimCar
+from viena.services.sim.model.truth import Truth
 
 G = 9.80665
 T0_NS = 1_717_236_000_000_000_000           # 2024-06-01 10:00:00 UTC, a whole GPS second
@@ -93,13 +93,13 @@ class TwinSensors:
         from viena.services.gnss.driver.novatel.enums import MessageId, TimeStatus
         from viena.services.gnss.driver.novatel.framing import Header
         from viena.services.gnss.driver.novatel.logs import LogMessage
-        from viena.services.gnss.fix import fix_from_bestxyz
+        from viena.services.gnss.model.fix import fix_from_bestxyz
         from viena.services.gnss.simulator.errors import GnssErrorModel, SkyModel
         from viena.services.gnss.simulator.novatel_twin import bestxyz_of
         from viena.services.gnss.simulator.solution import TruthSolver
-        from viena.services.imu.calibration import SampleCalibrator, seed_calibration
+        from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
         from viena.services.imu.driver import Frame, Reading
-        from viena.services.imu.sample import SampleBuilder
+        from viena.services.imu.model.sample import SampleBuilder
         from viena.services.imu.simulator import RazorBoard
 
         self.drive, self.rng = drive, rng

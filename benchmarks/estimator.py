@@ -23,9 +23,9 @@ import numpy as np
 
 from viena.common.rotation import euler_from_quat, wrap_angle
 from viena.services.estimator.estimator import Estimator
-from viena.services.estimator.simdrive import Drive, DriveSamples
-from viena.services.sim.car import CarParams
-from viena.services.sim.truth import IST_ORIGIN as ORIGIN   # where SimCar drives
+from benchmarks.simdrive import Drive, DriveSamples
+from viena.services.sim.model.car import CarParams
+from viena.services.sim.model.truth import IST_ORIGIN as ORIGIN   # where SimCar drives
 
 
 def _settings(drive: Drive, origin, **extra) -> dict:
@@ -143,9 +143,9 @@ def bench_live(seconds: float) -> list[tuple]:
     import zenoh
 
     from viena.common.config import load_zenoh_config
-    from viena.common.measure import cpu_seconds, processes, start_router
-    from viena.services.gnss.fix import FIX
-    from viena.services.imu.sample import SAMPLE
+    from benchmarks.harness import cpu_seconds, processes, start_router
+    from viena.services.gnss.model.fix import FIX
+    from viena.services.imu.model.sample import SAMPLE
 
     drive = Drive(duration_s=seconds + 15.0, seed=6)
     samples = list(DriveSamples(drive))

@@ -10,9 +10,9 @@ import argparse
 import time
 
 from viena.common.config import load_zenoh_config
-from viena.common.measure import cpu_share, processes, start_router
-from viena.services.sim.car import SimCar
-from viena.services.sim.truth import TRUTH, truth_sample
+from benchmarks.harness import cpu_share, processes, start_router
+from viena.services.sim.model.car import SimCar
+from viena.services.sim.model.truth import TRUTH, truth_sample
 
 
 def codec_us(n: int = 20000) -> float:
