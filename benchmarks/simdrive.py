@@ -12,6 +12,13 @@ sensor turns its truth into a sample dict in the agreed schema. Two sets of sens
 - "white": independent white errors of the same sizes (1.5 m per axis, 0.05 m/s, the
   Razor's noise and quantisation). No filter can remove a slowly drifting GNSS error
   without another reference, so this set shows what the filter does remove.
+
+What the estimator's benchmark also needs, each off by default: a steady speed on a road
+that suits it (`at_speed`: the campus loop up to 6 m/s, an open oval beyond), hills
+(`grade_pct`), outages on a schedule (`periodic_outages`), IMU stamps off the GNSS clock
+(`imu_time_offset_s`), a residual accelerometer bias, a position-only receiver
+(`gnss_velocity=False`, as NMEA GGA), sigmas sent as ENU or horizontal/vertical instead of
+ECEF (`sigma_form`), and a second receiver under the same sky (`second_antenna_m`).
 """
 from __future__ import annotations
 
@@ -23,8 +30,10 @@ from typing import Iterator
 import numpy as np
 import pymap3d
 
+from viena.common.rotation import quat_multiply
 from viena.services.gnss.driver.gpstime import utc_to_gps
 from viena.services.sim.model.car import CarParams, SimCar
+from viena.services.sim.model.route import oval
 from viena.services.sim.model.truth import Truth
 
 G = 9.80665
@@ -43,6 +52,34 @@ class Drive:
     with_mag: bool = True
     outages: tuple = ()                 # (start_s, end_s): the receiver has no solution
     random_outages: bool = False        # the twin's own short outages (as in the 2016 drive)
+    route: str = "campus"               # "campus" (the 40 m x 24 m loop) or "open" (ROUTES)
+    grade_pct: float = 0.0              # hills: the road's grade swings +- this much ...
+    grade_period_m: float = 300.0       # ... over this distance driven
+    imu_time_offset_s: float = 0.0      # IMU stamps = true time + this (a late adapter: > 0)
+    accel_bias_mps2: tuple | None = None   # body axes; None: the sensor set's own
+    gnss_velocity: bool = True          # False: a position-only receiver (NMEA GGA)
+    sigma_form: str = "ecef"            # sigmas as "ecef" (ecef_sigma_m), "enu" or "hv"
+    second_antenna_m: tuple | None = None  # a second receiver, gnss1, under the same sky (twins)
+
+
+#: Roads for the simulated car: the campus loop, and an open oval (200 m straights, 60 m
+#: bends: 3.3 m/s^2 sideways at 14 m/s) for speeds the loop's 12 m bends do not allow.
+ROUTES = {"campus": oval, "open": lambda: oval(straight_m=200.0, radius_m=60.0)}
+
+
+def at_speed(speed_mps: float, **kw) -> Drive:
+    """A drive at a steady speed after the usual 10 s parked: the campus loop up to 6 m/s,
+    the open oval above, with pure pursuit looking further ahead as speed grows."""
+    route = "campus" if speed_mps <= 6.0 else "open"
+    car = CarParams(speed_min_mps=speed_mps, speed_max_mps=speed_mps,
+                    lookahead_m=max(6.0, 1.5 * speed_mps))
+    return Drive(route=route, car=car, **kw)
+
+
+def periodic_outages(first_s: float, every_s: float, length_s: float, until_s: float) -> tuple:
+    """(start_s, end_s) pairs: `length_s` without GNSS every `every_s` from `first_s`."""
+    starts = np.arange(first_s, until_s - length_s + 1e-9, every_s)
+    return tuple((float(a), float(a + length_s)) for a in starts)
 
 
 class DriveSamples:
@@ -56,20 +93,33 @@ class DriveSamples:
 
     def __init__(self, drive: Drive | None = None):
         self.drive = d = drive or Drive()
+        if d.route not in ROUTES:
+            raise ValueError(f"route {d.route!r}: one of {sorted(ROUTES)}")
+        if d.sigma_form not in ("ecef", "enu", "hv"):
+            raise ValueError(f"sigma_form {d.sigma_form!r}: ecef, enu or hv")
         self.rng = np.random.default_rng(d.seed)
-        self.car = SimCar(d.car, start_time_ns=T0_NS)
+        self.car = SimCar(d.car, route=ROUTES[d.route](), start_time_ns=T0_NS)
         self.origin = self.car.origin
+        self.hills = Hills(d.grade_pct / 100.0, d.grade_period_m) if d.grade_pct else None
+        self._truth = self.car.truth()
         if d.sensors == "twins":
-            self.sensors = TwinSensors(d, self.rng, self.car.truth)
+            self.sensors = TwinSensors(d, self.rng, self.truth)
         elif d.sensors == "white":
             self.sensors = WhiteSensors(d, self.rng, self.origin)
         else:
             raise ValueError(f"sensors {d.sensors!r}: twins or white")
+        if d.second_antenna_m is not None and d.sensors != "twins":
+            raise ValueError("a second receiver needs the twins' sensors (one sky for both)")
+
+    def truth(self) -> Truth:
+        """The car's truth now (on its hills, if any): what the GNSS twins read."""
+        return self._truth
 
     def __iter__(self) -> Iterator[tuple[str, dict, object]]:
         d = self.drive
         imu_dt = 1.0 / d.imu_rate_hz
         gnss_ns = int(round(1e9 / d.gnss_rate_hz))
+        offset_ns = int(round(d.imu_time_offset_s * 1e9))
         recent: deque[Truth] = deque([self.car.truth()], maxlen=64)
         n_imu = n_gnss = 0
         while True:
@@ -77,13 +127,78 @@ class DriveSamples:
             if n_imu * imu_dt > d.duration_s:
                 return
             truth = self.car.step(imu_dt)
+            if self.hills is not None:
+                truth = self.hills.lift(truth, recent[-1], imu_dt)
+            self._truth = truth
             recent.append(truth)
             while T0_NS + (n_gnss + 1) * gnss_ns <= truth.t_ns:
                 n_gnss += 1
                 t_ns = T0_NS + n_gnss * gnss_ns
-                fix = self.sensors.gnss(t_ns, recent, n_gnss)
+                fix = self._as_sent(self.sensors.gnss(t_ns, recent, n_gnss))
                 yield "gnss", fix, _interpolate(recent, t_ns, d.lever_arm_m)[0]
-            yield "imu", self.sensors.imu(truth, n_imu), truth
+                if d.second_antenna_m is not None:
+                    fix = self._as_sent(self.sensors.gnss_second(t_ns, recent, n_gnss))
+                    yield "gnss", fix, _interpolate(recent, t_ns, d.second_antenna_m)[0]
+            sample = self.sensors.imu(truth, n_imu)
+            if offset_ns:
+                sample["t"] += offset_ns
+            if d.accel_bias_mps2 is not None:
+                sample["accel_mps2"] = [a + b for a, b in zip(sample["accel_mps2"], d.accel_bias_mps2)]
+            yield "imu", sample, truth
+
+    def _as_sent(self, fix: dict) -> dict:
+        """The fix as the drive's receiver sends it: without a velocity for a position-only
+        receiver, sigmas in the drive's form (ENU or horizontal/vertical: no ECEF sigmas)."""
+        d = self.drive
+        if not d.gnss_velocity:
+            fix.update(vel_ecef_mps=None, vel_sigma_mps=None, vel_status="INSUFFICIENT_OBS",
+                       vel_type="NONE", vel_latency_s=0.0)
+        if d.sigma_form != "ecef" and fix["valid"]:
+            e, n, u = self.sensors.sigma_enu(fix["unit"])
+            del fix["ecef_sigma_m"]
+            if d.sigma_form == "enu":
+                fix["enu_sigma_m"] = [e, n, u]
+            else:
+                fix["sigma_h_m"], fix["sigma_v_m"] = math.sqrt(0.5 * (e * e + n * n)), u
+        return fix
+
+
+class Hills:
+    """The road goes up and down as the car drives: grade G sin(2 pi s / L) over the
+    distance s driven, so height h(s) = G L / (2 pi) (1 - cos(2 pi s / L)).
+
+    The flat car's truth is lifted onto it exactly: the horizontal motion is the car's,
+    the height, vertical velocity (v h') and acceleration (a h' + v^2 h'') follow, the
+    car pitches nose up by atan(h') about its right axis, and the gyro feels the pitch rate
+    and the yaw rate turned by the pitch (body rate [theta', psi' sin theta, psi' cos theta])."""
+
+    def __init__(self, grade: float, period_m: float):
+        self.grade, self.k = grade, 2.0 * math.pi / period_m
+        self.s = 0.0
+
+    def lift(self, truth: Truth, previous: Truth, dt: float) -> Truth:
+        v = truth.speed_mps
+        self.s += 0.5 * (previous.speed_mps + v) * dt
+        g, k, s = self.grade, self.k, self.s
+        slope = g * math.sin(k * s)                          # h'
+        curve = g * k * math.cos(k * s)                      # h''
+        height = g / k * (1.0 - math.cos(k * s))
+        yaw_rate = float(truth.gyro_body_radps[2])
+        fwd = truth.vel_enu_mps / v if v > 0.0 else truth.rot[:, 1]
+        along = float(truth.accel_enu_mps2 @ fwd)
+        pitch = math.atan(slope)
+        pitch_rate = v * curve / (1.0 + slope * slope)
+        half = 0.5 * pitch
+        quat = quat_multiply(truth.quat, (math.cos(half), math.sin(half), 0.0, 0.0))
+        return Truth(
+            t_ns=truth.t_ns, t_s=truth.t_s, origin=truth.origin,
+            enu_m=truth.enu_m + np.array([0.0, 0.0, height]),
+            vel_enu_mps=truth.vel_enu_mps + np.array([0.0, 0.0, v * slope]),
+            accel_enu_mps2=truth.accel_enu_mps2 + np.array([0.0, 0.0, along * slope + v * v * curve]),
+            quat=np.asarray(quat, float),
+            gyro_body_radps=np.array([pitch_rate, yaw_rate * math.sin(pitch), yaw_rate * math.cos(pitch)]),
+            speed_mps=v, wheel_angle_rad=truth.wheel_angle_rad, gravity_mps2=truth.gravity_mps2,
+            seq=truth.seq)
 
 
 class TwinSensors:
@@ -106,9 +221,18 @@ class TwinSensors:
         self.board = RazorBoard()
         self.builder = SampleBuilder("imu0", "viena", SampleCalibrator(seed_calibration("viena")))
         self._frame, self._reading = Frame, Reading
-        sky = SkyModel(rng, outages=tuple((a, b) for a, b in drive.outages),
-                       outage_interval_s=64.0 if drive.random_outages else 0.0)
-        self.solver = TruthSolver(truth_fn, drive.lever_arm_m, errors=GnssErrorModel(rng), sky=sky)
+        from viena.services.gnss.simulator.errors import CommonErrors
+
+        def sky():
+            return SkyModel(rng, outages=tuple((a, b) for a, b in drive.outages),
+                            outage_interval_s=64.0 if drive.random_outages else 0.0)
+        common = CommonErrors(rng) if drive.second_antenna_m is not None else None
+        self.solver = TruthSolver(truth_fn, drive.lever_arm_m, errors=GnssErrorModel(rng, common=common),
+                                  sky=sky())
+        self.second = None
+        if drive.second_antenna_m is not None:
+            self.second = TruthSolver(truth_fn, drive.second_antenna_m,
+                                      errors=GnssErrorModel(rng, common=common), sky=sky())
         self._header, self._log, self._fix, self._bestxyz = Header, LogMessage, fix_from_bestxyz, bestxyz_of
         self._ids = (MessageId.BESTXYZ, TimeStatus.FINESTEERING)
 
@@ -126,6 +250,20 @@ class TwinSensors:
         header = self._header(self._ids[0], week=week, milliseconds=ms, time_status=self._ids[1])
         # the twin's velocity is as old as the Doppler latency it reports, like the OEM4's
         return self._fix(self._log(header, self._bestxyz(solution), t_ns + 50_000_000), "gnss0", seq)
+
+    def gnss_second(self, t_ns: int, recent, seq: int) -> dict:
+        """The same epoch from the second receiver, gnss1 (its own antenna, the same sky)."""
+        first = self.solver
+        self.solver = self.second
+        try:
+            return dict(self.gnss(t_ns, recent, seq), unit="gnss1")
+        finally:
+            self.solver = first
+
+    def sigma_enu(self, unit: str) -> tuple:
+        """The receiver's position sigmas along E, N, U (what BESTPOS or GST would send)."""
+        solver = self.second if unit == "gnss1" else self.solver
+        return tuple(float(v) for v in solver.errors.sigma_enu)
 
 
 class WhiteSensors:
@@ -196,6 +334,10 @@ class WhiteSensors:
                    vel_ecef_mps=[float(x) for x in v], vel_sigma_mps=[self.vel_sigma_mps] * 3,
                    lat_deg=float(lat), lon_deg=float(lon), height_m=float(h))
         return fix
+
+    def sigma_enu(self, unit: str) -> tuple:
+        """Isotropic: the same sigma along E, N, U as along the ECEF axes."""
+        return (self.pos_sigma_m,) * 3
 
 
 def _interpolate(recent, t_ns: int, arm) -> tuple[np.ndarray, np.ndarray]:

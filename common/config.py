@@ -24,6 +24,7 @@ from typing import Any
 import json5
 
 from viena.common.errors import ConfigError
+from viena.common.settings import convert
 
 MULTICAST_OFF = "scouting/multicast/enabled"
 
@@ -64,7 +65,9 @@ def load_toml(path: str | Path) -> dict:
 
 
 def merge_settings(defaults: dict, given: dict, source: str) -> dict:
-    """Defaults overlaid with `given`; unknown names and wrong types are errors."""
+    """Defaults overlaid with `given`; unknown names and wrong types are errors. For the
+    small tables declared as a dict (the twins' [sim.<name>]); a service's settings are a
+    dataclass (common/settings.py)."""
     out = dict(defaults)
     for name, value in given.items():
         if name not in defaults:
@@ -75,21 +78,10 @@ def merge_settings(defaults: dict, given: dict, source: str) -> dict:
 
 
 def check_type(name: str, value: Any, default: Any, source: str) -> Any:
+    """`value` as the type of `default` (None on either side: as it is)."""
     if default is None or value is None:
         return value
-    want = type(default)
-    if want is float and type(value) is int:
-        return float(value)
-    if want is list and isinstance(value, (list, tuple)):
-        return list(value)
-    if want in (int, float) and isinstance(value, str):      # from ${VAR} expansion
-        try:
-            return want(value)
-        except ValueError:
-            pass
-    if type(value) is not want:
-        raise ConfigError(f"{source}: setting '{name}' must be {want.__name__}, got {value!r}")
-    return value
+    return convert(value, type(default), name, source)
 
 
 def load_zenoh_config(path: str | Path | None = None, *, mode: str | None = None,

@@ -4,6 +4,8 @@ A `Schema` names a sample type (`viena.sim.truth/1`) and lists its fields. `enco
 a sample before it goes out, so a bad value is never published; `decode` checks what comes
 in and turns anything malformed into a `SampleError` that says which field is wrong.
 Every schema lives in the one module that owns it; `SCHEMAS` finds them by name.
+A consumer that reads only a few fields, of samples from any source, uses a `Reader`
+(`FIX.reader("t", "ecef_m")`): the same checks, on those fields alone.
 
     >>> FIX = Schema("viena.example/1", {"t": F.time, "seq": F.int, "x_m": F.float})
     >>> FIX.decode(FIX.encode({"t": 1, "seq": 0, "x_m": 2.5}))
@@ -245,6 +247,102 @@ class Schema:
 
     def __repr__(self) -> str:
         return f"Schema({self.name!r})"
+
+    def reader(self, *names: str, defaults: dict | None = None) -> "Reader":
+        """Reads these fields out of a sample with this schema's checks (see `Reader`)."""
+        return Reader(self, names, defaults)
+
+
+class FieldError(SampleError):
+    """A sample whose field `field` is missing or wrong. `not_finite`: the field held
+    numbers of the right shape, one of them NaN or infinite (a consumer may count that
+    apart from malformed input)."""
+
+    def __init__(self, message: str, field: str, not_finite: bool = False):
+        super().__init__(message)
+        self.field, self.not_finite = field, not_finite
+
+
+class Reader:
+    """Some fields of a schema, read out of a sample and checked by the schema's own checks.
+
+    For consumers that read a few fields of samples from any source, not only from
+    viena's own publishers (the estimator reads a fix's position and velocity): only these
+    fields are checked, a field in `defaults` (or an optional one) may be missing, and
+    the sample is never changed. Calling it returns the values in the order of `names`,
+    or raises FieldError. Values that pass unchanged are the sample's own objects.
+    Cheap: the usual case (every value already valid) is one compiled test per field,
+    as in `Schema.decode`.
+    """
+
+    def __init__(self, schema: Schema, names, defaults: dict | None = None):
+        self.schema, self.names = schema, tuple(names)
+        self.defaults = dict(defaults or {})
+        unknown = sorted(set(self.names) - set(schema.fields) | set(self.defaults) - set(self.names))
+        if unknown:
+            raise ValueError(f"{schema.name} has no field {unknown[0]!r} to read")
+        self._checks = [schema.fields[n] for n in self.names]
+        for name, check in zip(self.names, self._checks):
+            if getattr(check, "optional", False):
+                self.defaults.setdefault(name, None)
+        self._fast = self._compile()
+
+    def _compile(self):
+        """One function: the values when each is what its check keeps, else None."""
+        lines = ["def fast(sample):", "    if type(sample) is not dict: return None", "    get = sample.get"]
+        for i, (name, check) in enumerate(zip(self.names, self._checks)):
+            expr = getattr(check, "fast", f"C[{i}](v) is v")
+            lines.append(f"    v{i} = v = get({name!r}, M)")
+            if name in self.defaults:
+                lines.append(f"    if v is M: v{i} = D[{i}]")
+                lines.append(f"    elif not ({expr}): return None")
+            else:
+                lines.append(f"    if v is M or not ({expr}): return None")
+        lines.append(f"    return ({''.join(f'v{i}, ' for i in range(len(self.names)))})")
+        scope = {"M": _MISSING, "C": self._checks, "D": [self.defaults.get(n) for n in self.names]}
+        exec("\n".join(lines), scope)
+        return scope["fast"]
+
+    def __call__(self, sample: Any) -> tuple:
+        try:
+            values = self._fast(sample)
+        except (Invalid, SampleError):
+            values = None                     # the slow path below says what is wrong
+        return self._slow(sample) if values is None else values
+
+    def _slow(self, sample: Any) -> tuple:
+        where = self.schema.name
+        if not isinstance(sample, dict):
+            raise FieldError(f"{where}: {Invalid('expected a map', sample)}", "")
+        values = []
+        for name, check in zip(self.names, self._checks):
+            v = sample.get(name, _MISSING)
+            if v is _MISSING:
+                if name not in self.defaults:
+                    raise FieldError(f"{where}: missing field '{name}'", name)
+                values.append(self.defaults[name])
+                continue
+            try:
+                values.append(check(v))
+            except Invalid as exc:
+                raise FieldError(f"{where}.{name}: {exc}", name, _fails_for_not_finite(check, v)) from None
+            except SampleError as exc:         # from a nested struct
+                raise FieldError(f"{where}.{name}{exc}", name) from None
+        return tuple(values)
+
+
+def _fails_for_not_finite(check: Check, v: Any) -> bool:
+    """True when v would pass `check` with its NaNs and infinities made zeros."""
+    def zero(x):
+        return 0.0 if isinstance(x, float) and not math.isfinite(x) else x
+    stand_in = [zero(x) for x in v] if isinstance(v, (list, tuple)) else zero(v)
+    if stand_in is v or (isinstance(v, (list, tuple)) and all(a is b for a, b in zip(stand_in, v))):
+        return False                          # nothing was NaN or infinite
+    try:
+        check(stand_in)
+    except (Invalid, SampleError):
+        return False
+    return True
 
 
 def unpack(payload: bytes | bytearray | memoryview, what: str = "payload") -> Any:

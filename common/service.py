@@ -1,12 +1,14 @@
 """The life of every viena process: flags, settings, session, health, and a clean stop.
 
-A service subclasses `Service`, names itself, lists its settings with their defaults, and
-fills in `start()` and `stop()`. Everything else is the same everywhere:
+A service subclasses `Service`, names itself, names its settings dataclass
+(common/settings.py), and fills in `start()` and `stop()`. Everything else is the same
+everywhere:
 
-- flags `--connect`, `--car`, `--config`, `--unit`, `--log-level`, `--help`, plus the
-  service's own (each setting can also be given as a flag of the same name);
-- settings from the TOML file's `[<name>]` table and `[<name>.<unit>]` sub-table;
-  a bad file or setting stops the process at start with one line naming both;
+- flags `--connect`, `--car`, `--config`, `--unit`, `--log-level`, `--help`, plus one per
+  setting (`--name-with-dashes`);
+- settings: the dataclass's defaults, overlaid with the TOML file's `[<name>]` table, then
+  its `[<name>.<unit>]` sub-table, then the flags; a bad file or setting stops the process
+  at start with one line naming both;
 - a liveliness token (discovery only, design §3), a health sample once a second;
 - SIGTERM/SIGINT: stop within 2 s, with every publisher, subscriber, queryable and the
   session closed (zenoh-python can hang at exit if any are left open).
@@ -19,9 +21,9 @@ import os
 import signal
 import sys
 import threading
+from dataclasses import dataclass
 from typing import Any, Callable
 
-from viena.common.config import merge_settings
 from viena.common.errors import ConfigError, SampleError
 from viena.common.health import HEALTH, Health
 from viena.common.keys import Keys
@@ -29,6 +31,7 @@ from viena.common.log import setup_logging
 from viena.common.schema import Schema
 from viena.common.session import (add_common_arguments, car_name, load_settings_file,
                                   open_session, zenoh_config)
+from viena.common.settings import add_flags, given_flags, load, specs
 
 STOP_DEADLINE_S = 2.0
 HEALTH_PERIOD_S = 1.0
@@ -60,13 +63,18 @@ class Publisher:
         self._pub.undeclare()
 
 
+@dataclass(frozen=True)
+class NoSettings:
+    """A service without settings of its own."""
+
+
 class Service:
     """Base class of every viena process. See the module docstring."""
 
     #: the name in keys and in the TOML file: viena/<car>/<name>/...
     name = "service"
-    #: settings with their defaults; the type of each default is the setting's type
-    settings_defaults: dict[str, Any] = {}
+    #: the settings dataclass, declared with common/settings.py's `setting()`
+    settings_class: type = NoSettings
     #: units are optional (the router and the estimator have none)
     default_unit: str | None = None
     description = ""
@@ -78,7 +86,7 @@ class Service:
         self.toml = toml
         self.unit = getattr(args, "unit", None) or self.default_unit
         self.keys = Keys(car_name(args, toml))
-        self.settings = self._settings(toml, args)
+        self.settings = self.read_settings(toml, self.unit, args)
         self.zenoh_config = zenoh_config(args, toml, identity=self.unit or self.name)
         self.health = Health(self.name, self.unit)
         self.stopping = threading.Event()
@@ -89,7 +97,7 @@ class Service:
     # -- for subclasses --------------------------------------------------------------------
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        """Add the service's own flags; a flag whose dest is a setting name overrides it."""
+        """Flags other than the settings' (each setting has its flag already)."""
 
     def start(self) -> None:
         """Open the device, declare publishers and queryables, start threads."""
@@ -169,21 +177,21 @@ class Service:
         self.log.info("stopped")
 
     # -- settings ------------------------------------------------------------------------------
-    def _settings(self, toml: dict, args: argparse.Namespace) -> dict:
+    @classmethod
+    def read_settings(cls, toml: dict, unit: str | None, args: argparse.Namespace) -> Any:
+        """Defaults < [<name>] < [<name>.<unit>] < flags. A sub-table that is not a
+        setting is a unit's (or, in [sim], a device's)."""
         source = str(getattr(args, "config", None))
-        table = toml.get(self.name, {})
+        table = toml.get(cls.name, {})
         if not isinstance(table, dict):
-            raise ConfigError(f"{source}: [{self.name}] must be a table")
-        units = {k: v for k, v in table.items() if isinstance(v, dict) and k not in self.settings_defaults}
-        own = {k: v for k, v in table.items() if k not in units}
-        settings = merge_settings(self.settings_defaults, own, f"{source} [{self.name}]")
-        if self.unit and self.unit in units:
-            settings = merge_settings(settings, units[self.unit], f"{source} [{self.name}.{self.unit}]")
-        for name in self.settings_defaults:
-            value = getattr(args, name, None)
-            if value is not None:
-                settings[name] = value
-        return settings
+            raise ConfigError(f"{source}: [{cls.name}] must be a table")
+        known = specs(cls.settings_class)
+        units = {k: v for k, v in table.items() if isinstance(v, dict) and k not in known}
+        layers = [({k: v for k, v in table.items() if k not in units}, f"{source} [{cls.name}]")]
+        if unit and unit in units:
+            layers.append((units[unit], f"{source} [{cls.name}.{unit}]"))
+        layers.append((given_flags(args, cls.settings_class), "command line"))
+        return load(cls.settings_class, layers)
 
 
 def build_parser(cls: type[Service]) -> argparse.ArgumentParser:
@@ -194,6 +202,7 @@ def build_parser(cls: type[Service]) -> argparse.ArgumentParser:
     parser.add_argument("--unit", metavar="NAME", default=None,
                         help=f"which unit this process runs (default {cls.default_unit}); "
                              f"its settings come from the [{cls.name}.NAME] table")
+    add_flags(parser, cls.settings_class, f"settings (the [{cls.name}] table of --config; a flag wins)")
     cls.add_arguments(parser)
     return parser
 

@@ -6,7 +6,15 @@ import os
 
 import pytest
 
-from vienatest import Processes, free_port, wait_for_port
+from vienatest import Processes, open_session, start_router
+
+
+def pytest_collection_modifyitems(items):
+    """A test that starts processes through `procs` (as `router` and `session` do) belongs
+    to the slow tier: `-m "not slow"` leaves it out without a mark of its own."""
+    for item in items:
+        if "procs" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture
@@ -19,19 +27,13 @@ def procs():
 @pytest.fixture
 def router(procs):
     """A `viena router` on a free port; yields its endpoint."""
-    port = free_port()
-    procs.python("-m", "viena.router", "--listen", f"tcp/127.0.0.1:{port}", "--log-level", "WARNING")
-    wait_for_port(port)
-    return f"tcp/127.0.0.1:{port}"
+    return start_router(procs)
 
 
 @pytest.fixture
 def session(router):
     """A zenoh client session connected to the test router."""
-    from viena.common.config import load_zenoh_config
-    import zenoh
-
-    s = zenoh.open(load_zenoh_config(mode="client", connect=[router]))
+    s = open_session(router)
     yield s
     s.close()
 

@@ -6,9 +6,11 @@ import time
 
 import pytest
 
-from vienatest import collect
+from vienatest import collect, wait_for_line, wait_until
 from viena.common.health import HEALTH
 from viena.services.sim.model.truth import TRUTH
+
+pytestmark = pytest.mark.slow  # every service is started as a process
 
 
 def test_help_explains_the_common_flags():
@@ -70,10 +72,11 @@ def test_stops_within_two_seconds_with_status_zero(procs, router, session, sig):
     assert took < 2.0, f"stopped in {took:.2f} s"
     err = proc.stderr.read()
     assert "stopped" in err and "exiting anyway" not in err
-    # and the token is gone with it
-    time.sleep(0.3)
-    tokens = [r for r in session.liveliness().get("viena/stoptest/alive/**", timeout=2) if r.ok]
-    assert tokens == []
+    # and the token is gone with it (once the router has seen the session end)
+    def tokens():
+        return [r for r in session.liveliness().get("viena/stoptest/alive/**", timeout=2) if r.ok]
+    wait_until(lambda: tokens() == [], 5, period=0.05)
+    assert tokens() == []
 
 
 def test_service_waits_for_a_router_that_comes_later(procs, tmp_path):
@@ -84,7 +87,7 @@ def test_service_waits_for_a_router_that_comes_later(procs, tmp_path):
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     sim = start_sim(procs, endpoint)
-    time.sleep(1.0)
+    wait_for_line(sim.stderr, "cannot reach the router yet")
     assert sim.poll() is None                      # still trying, not dead
     procs.python("-m", "viena.router", "--listen", endpoint)
     wait_for_port(port)

@@ -25,6 +25,8 @@ import pytest
 from vienatest import Processes
 from viena.paths import compose_dir
 
+pytestmark = pytest.mark.slow  # two hosts, each with a whole profile
+
 PY = sys.executable
 TAG = f"{os.getpid() % 100000}"
 PI_ADDR, LAPTOP_ADDR = "10.254.77.1", "10.254.77.2"

@@ -98,6 +98,7 @@ json_values = st.recursive(
     max_leaves=12)
 
 
+@pytest.mark.slow  # 300 random maps
 @settings(max_examples=300, deadline=None)
 @given(st.dictionaries(st.sampled_from(sorted(GOOD) + ["x"]), json_values, max_size=10))
 def test_random_maps_are_accepted_only_when_valid(sample):

@@ -1,23 +1,26 @@
 """End to end through the `sim` compose profile, as `viena up` runs it: the real services
 read the twins of the simulated car over their real wire protocols, and what they publish
-agrees with the car's ground truth."""
+agrees with the car's ground truth. The same profile watched with the real `zenoh` CLI
+and `viena sub`."""
 from __future__ import annotations
 
 import bisect
 from contextlib import contextmanager
 import json
+import shutil
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
+import msgpack
 import numpy as np
 import pymap3d
 import pytest
-import zenoh
 
-from vienatest import collect
-from viena.common.config import load_zenoh_config
+from vienatest import (collect, collect_until, open_session, sim_profile_up, viena, wait_for_subscriber,
+                       wait_until)
 from viena.common.health import HEALTH
 from viena.common.rotation import quat_to_matrix
 from viena.services.estimator.state import STATE
@@ -27,26 +30,24 @@ from viena.services.sim.model.truth import TRUTH
 from viena.services.steering.client import SteeringClient
 from viena.services.steering.model.state import STATE as STEERING
 
-VIENA = [sys.executable, "-m", "viena.cli"]
+pytestmark = pytest.mark.slow  # the whole sim profile
+
+ZENOH_CLI = shutil.which("zenoh", path=str(Path(sys.executable).parent)) or shutil.which("zenoh")
 LEVER_ARMS = {"gnss0": (-0.5, 1.0, 1.5), "gnss1": (0.5, 1.0, 1.5)}
 
 
 @pytest.fixture(scope="module")
-def car(tmp_path_factory):
-    """The whole simulated car under supervisord, and a client session to its router."""
-    import os
-    env = dict(os.environ, VIENA_RUN=str(tmp_path_factory.mktemp("run")))
-    env.pop("VIENA_ROUTER_PORT", None)
-    up = subprocess.run([*VIENA, "up", "-d", "--free-ports"], env=env, capture_output=True,
-                        text=True, timeout=120)
-    try:
-        assert up.returncode == 0, up.stderr
-        saved = json.loads((Path(env["VIENA_RUN"]) / "env.json").read_text())
-        router = f"tcp/127.0.0.1:{saved['VIENA_ROUTER_PORT']}"
-        with zenoh.open(load_zenoh_config(mode="client", connect=[router])) as session:
-            yield session
-    finally:
-        subprocess.run([*VIENA, "down", "--profile", "sim"], env=env, capture_output=True, timeout=60)
+def sim_profile(tmp_path_factory):
+    """The whole simulated car under supervisord, once for the module: (environment, router)."""
+    with sim_profile_up(tmp_path_factory.mktemp("run")) as up:
+        yield up
+
+
+@pytest.fixture(scope="module")
+def car(sim_profile):
+    """A client session to the car's router."""
+    with open_session(sim_profile[1]) as session:
+        yield session
 
 
 @contextmanager
@@ -67,10 +68,15 @@ def nearest(truths: list[dict], t_ns: int) -> dict | None:
     return truths[i] if 0 < i < len(times) else None
 
 
+def programs(healths: list[dict]) -> set[str]:
+    return {h["service"] + "/" + str(h["unit"]) for h in healths}
+
+
 def test_every_program_reports_health(car):
-    seen = {h["service"] + "/" + str(h["unit"]) for h in
-            collect(car, "viena/elettra/**/health", 30, timeout=20, decode=HEALTH.decode)}
-    assert {"sim/None", "gnss/gnss0", "gnss/gnss1", "imu/razor0"} <= seen
+    expected = {"sim/None", "gnss/gnss0", "gnss/gnss1", "imu/razor0"}
+    seen = programs(collect_until(car, "viena/elettra/**/health", lambda got: expected <= programs(got),
+                                  timeout=20, decode=HEALTH.decode))
+    assert expected <= seen
 
 
 def test_gnss_fixes_within_noise_of_truth(car):
@@ -134,18 +140,22 @@ def test_estimator_state_tracks_truth(car):
 
 
 def test_steering_comes_up_calibrated_and_a_setpoint_turns_the_car(car):
-    end = time.monotonic() + 60
-    state = None
-    while time.monotonic() < end:                 # the twin sweeps lock to lock first
-        states = collect(car, "viena/elettra/steering/state", 1, timeout=5, decode=STEERING.decode)
-        state = states[-1] if states else None
-        if state and state["phase"] == "ready":
-            break
-        time.sleep(0.5)
+    latest = {}
+    sub = car.declare_subscriber("viena/elettra/steering/state",
+                                 lambda s: latest.update(state=STEERING.decode(s.payload.to_bytes())))
+    try:                                          # the twin sweeps lock to lock first
+        wait_until(lambda: latest and latest["state"]["phase"] == "ready", 60, period=0.05)
+    finally:
+        sub.undeclare()
+    state = latest.get("state")
     assert state and state["phase"] == "ready" and not state["armed"], state
     calibration = state["calibration"]
     assert calibration["state"] == "done" and 90_000 <= calibration["span_qc"] <= 100_000, calibration
 
+    # a turned wheel turns only a moving car: past the parked start (the tests before this
+    # one may have taken less than that)
+    collect_until(car, "viena/elettra/sim/truth", lambda got: got and got[-1]["speed_mps"] > 1,
+                  timeout=60, decode=TRUTH.decode)
     client = SteeringClient(car)
     reply = client.arm()
     assert reply["status"] == "accepted", reply
@@ -158,3 +168,49 @@ def test_steering_comes_up_calibrated_and_a_setpoint_turns_the_car(car):
         assert truths[-1]["gyro_radps"][2] > 0                   # to the left
     finally:
         assert client.disarm()["status"] == "accepted"
+
+
+def test_sim_profile_truth_through_zenoh_cli_and_viena_sub(sim_profile):
+    env, router = sim_profile
+    assert ZENOH_CLI, "the zenoh CLI (zenoh-cli package) must be installed"
+    cli = subprocess.Popen(
+        [ZENOH_CLI, "--mode", "client", "--connect", router, "--cfg", "scouting/multicast/enabled:false",
+         "subscribe", "-k", "viena/elettra/sim/truth", "--decoder", "msgpack"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        first = cli.stdout.readline()
+        second = cli.stdout.readline()
+    finally:
+        cli.terminate()
+        cli.wait(timeout=10)
+    for line in (first, second):
+        sample = json.loads(line)
+        assert sample["lat_deg"] == pytest.approx(38.7369, abs=0.01)
+        assert len(sample["ecef_m"]) == 3 and len(sample["quat"]) == 4
+    assert json.loads(second)["seq"] > json.loads(first)["seq"]
+
+    sub = viena("sub", "--connect", router, "viena/elettra/sim/truth", "-n", "3", "--timeout", "20", env=env)
+    assert sub.returncode == 0, sub.stderr
+    lines = sub.stdout.strip().splitlines()
+    assert len(lines) == 3 and all(line.startswith("viena/elettra/sim/truth {") for line in lines)
+
+    as_json = viena("sub", "--connect", router, "viena/elettra/sim/truth", "-n", "1", "--json",
+                    "--timeout", "20", env=env)
+    record = json.loads(as_json.stdout)
+    assert record["key"] == "viena/elettra/sim/truth"
+    assert record["encoding"] == "application/msgpack;viena.sim.truth/1"
+    assert record["value"]["speed_mps"] >= 0
+
+
+def test_zenoh_cli_put_with_msgpack_encoder(sim_profile):
+    env, router = sim_profile
+    with open_session(router) as s, open_session(router) as probe:
+        got = []
+        t = threading.Thread(target=lambda: got.extend(collect(s, "viena/elettra/test/put", 1, timeout=20)))
+        t.start()
+        assert wait_for_subscriber(probe, "viena/elettra/test/put")
+        subprocess.run([ZENOH_CLI, "--mode", "client", "--connect", router, "--cfg",
+                        "scouting/multicast/enabled:false", "put", "-k", "viena/elettra/test/put",
+                        "--encoder", "msgpack", "-v", '{"a": 1}'], check=True, timeout=30)
+        t.join()
+    assert got and msgpack.unpackb(got[0][1]) == {"a": 1}

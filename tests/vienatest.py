@@ -1,16 +1,23 @@
-"""What tests share besides fixtures: processes that are always cleaned up, collecting
-samples. Imported as `vienatest` (a unique name: every tests/ folder sees it)."""
+"""What tests share besides fixtures: processes that are always cleaned up, the `viena`
+command and the sim profile, collecting samples, and waits on readiness (a condition, a
+port, a log line, a subscriber the router knows) instead of fixed sleeps. Imported as
+`vienatest` (a unique name: every tests/ folder sees it)."""
 from __future__ import annotations
 
+import json
+import os
 import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Callable
 
 from benchmarks.harness import free_port, wait_for_port  # noqa: F401  (tests import them from here)
 
 PYTHON = sys.executable
+VIENA = [PYTHON, "-m", "viena.cli"]
 
 
 class Processes:
@@ -42,8 +49,55 @@ class Processes:
                 proc.wait()
 
 
+def start_router(procs: Processes) -> str:
+    """A `viena router` on a free loopback port, started by `procs`; its endpoint once it
+    listens."""
+    port = free_port()
+    procs.python("-m", "viena.router", "--listen", f"tcp/127.0.0.1:{port}", "--log-level", "WARNING")
+    wait_for_port(port)
+    return f"tcp/127.0.0.1:{port}"
+
+
+def open_session(router: str):
+    """A zenoh client session on the router at endpoint `router` (close it, or use `with`)."""
+    import zenoh
+
+    from viena.common.config import load_zenoh_config
+    return zenoh.open(load_zenoh_config(mode="client", connect=[router]))
+
+
+def viena(*args, timeout: float = 60, **kw) -> subprocess.CompletedProcess:
+    """`viena ARGS...` run to its end, its output captured as text."""
+    return subprocess.run([*VIENA, *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, **kw)
+
+
+@contextmanager
+def sim_profile_up(run: Path):
+    """The `sim` profile under supervisord (`viena up -d --free-ports`), its run directory
+    `run`: yields (environment, router endpoint) once the router listens (supervisord calls
+    a program RUNNING before that), and brings the profile down at the end."""
+    env = dict(os.environ, VIENA_RUN=str(run))
+    env.pop("VIENA_ROUTER_PORT", None)
+    up = viena("up", "--profile", "sim", "-d", "--free-ports", env=env, timeout=120)
+    try:
+        assert up.returncode == 0, up.stderr
+        port = int(json.loads((run / "env.json").read_text())["VIENA_ROUTER_PORT"])
+        wait_for_port(port)
+        yield env, f"tcp/127.0.0.1:{port}"
+    finally:
+        viena("down", "--profile", "sim", env=env)
+
+
 def collect(session, keyexpr: str, count: int, timeout: float = 10.0, decode=None) -> list:
     """The first `count` samples on keyexpr (decoded by `decode` if given)."""
+    return collect_until(session, keyexpr, lambda out: len(out) >= count, timeout, decode)
+
+
+def collect_until(session, keyexpr: str, done: Callable[[list], bool], timeout: float = 10.0,
+                  decode=None) -> list:
+    """Samples on keyexpr (decoded by `decode` if given, else (key, payload, encoding))
+    until `done(samples)` says enough, or `timeout` s pass."""
     import queue
 
     q: queue.Queue = queue.Queue()
@@ -51,7 +105,7 @@ def collect(session, keyexpr: str, count: int, timeout: float = 10.0, decode=Non
     out = []
     end = time.monotonic() + timeout
     try:
-        while len(out) < count and time.monotonic() < end:
+        while not done(out) and time.monotonic() < end:
             try:
                 key, payload, enc = q.get(timeout=0.1)
             except queue.Empty:
@@ -70,3 +124,37 @@ def wait_until(predicate: Callable[[], bool], timeout: float, period: float = 0.
             return True
         time.sleep(period)
     return bool(predicate())
+
+
+def wait_for_line(stream, text: str, timeout: float = 20.0) -> str:
+    """Read lines of a subprocess pipe until one contains `text` (a process saying it is
+    ready, or what it is doing); that line."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        line = stream.readline()
+        if text in line:
+            return line
+        if not line:                # the pipe is closed: nothing more will come
+            break
+    raise TimeoutError(f"no line with {text!r}")
+
+
+def wait_for_subscriber(session, keyexpr: str, timeout: float = 10.0) -> bool:
+    """Until the router has told `session` of a subscriber on keyexpr in another session
+    or process: from then on a put on keyexpr, from any client of that router, reaches
+    it. (A subscriber in `session` itself matches at once: pass another session.)"""
+    publisher = session.declare_publisher(keyexpr)
+    try:
+        return wait_until(lambda: publisher.matching_status.matching, timeout)
+    finally:
+        publisher.undeclare()
+
+
+def wait_for_queryable(session, keyexpr: str, timeout: float = 10.0) -> bool:
+    """Until the router has told `session` of a queryable on keyexpr elsewhere, so that a
+    query from `session` reaches it."""
+    querier = session.declare_querier(keyexpr)
+    try:
+        return wait_until(lambda: querier.matching_status.matching, timeout)
+    finally:
+        querier.undeclare()

@@ -7,6 +7,7 @@
     viena router                      a zenoh router (for machines without zenohd)
     viena bench [NAME ...]            print the benchmark figures
     viena calibrate imu ...           fit IMU calibrations from recordings
+    viena settings [SERVICE]          every setting of a service: type, default, meaning
 """
 from __future__ import annotations
 
@@ -26,6 +27,7 @@ TOOLS = {
     "export": ("viena.export", "an MCAP recording as CSV or JSON"),
     "plot": ("viena.plot", "a recorded drive as a PNG"),
     "keys": ("viena.keys", "the car's certificates: init, issue, list, zenoh-config"),
+    "settings": ("viena.settings", "every setting of a service: type, default, meaning"),
 }
 CALIBRATIONS = {"imu": "viena.services.imu.calibration_cli"}
 

@@ -11,24 +11,31 @@ drive), is shown as "no token". For one key, `viena sub` prints every sample.
 
 The dashboard is a plain data model (`MonitorModel`, fed with decoded samples) and a
 rich rendering of its `view()`; only the newest payload per key is decoded, once a frame.
+What a panel shows of a sample is up to the module that owns its schema (its
+`monitor_view`, made of the pieces in viena.common.display): the monitor only lays it out.
 """
 from __future__ import annotations
 
 import argparse
-import math
 import queue
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
+from viena.common.display import Alert, fmt_age
 from viena.common.errors import InputError
-from viena.common.health import RECONNECTS
+from viena.common.health import HealthReport
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
 from viena.common.session import (stop_on_signals, add_common_arguments, car_name, load_settings_file,
                                   open_session, zenoh_config)
+from viena.services.estimator.state import monitor_view as estimator_view
+from viena.services.gnss.model.fix import monitor_view as gnss_view
+from viena.services.imu.model.sample import monitor_view as imu_view
+from viena.services.sim.model.truth import monitor_view as truth_view
+from viena.services.steering.model.state import monitor_view as steering_view
 
 DATA_STALE_S = 1.0
 HEALTH_STALE_S = 3.0            # health comes once a second: three missed is stale
@@ -77,12 +84,7 @@ class ServiceView:
     status: str                     # alive | lost | no token
     status_age_s: float | None      # since the token came or went
     health: Aged | None
-    uptime_s: float | None = None
-    rates_hz: dict = field(default_factory=dict)
-    errors: dict = field(default_factory=dict)
-    last_sample_age_s: float | None = None
-    reconnects: int | None = None
-    state: dict = field(default_factory=dict)
+    report: HealthReport | None = None      # what its health says, as of now
 
 
 @dataclass
@@ -97,19 +99,6 @@ class View:
     others: list[Aged]
     bad: dict[str, str]             # key -> why its last sample could not be decoded
     total_rate_hz: float
-
-
-def _number(v) -> float | None:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return None
-    return float(v) if math.isfinite(v) else None
-
-
-def _vec(v, n: int | None = None) -> list[float] | None:
-    if not isinstance(v, (list, tuple)) or (n is not None and len(v) != n) or not v:
-        return None
-    out = [_number(x) for x in v]
-    return None if any(x is None for x in out) else out
 
 
 class MonitorModel:
@@ -208,159 +197,9 @@ class MonitorModel:
     def _service_view(self, s: ServiceState, now: float) -> ServiceView:
         status = {True: "alive", False: "lost", None: "no token"}[s.token]
         since = None if s.token_changed is None else now - s.token_changed
-        view = ServiceView(s.name, status, since, self._aged(s.health, now, self.health_stale_s))
-        if view.health is None:
-            return view
-        h, age = view.health.value, view.health.age_s
-        view.uptime_s = _plus(_number(h.get("uptime_s")), age)
-        counts = _numbers(h.get("counts"))
-        # a rate of something that never happened (unknown_messages 0.0) is only noise
-        view.rates_hz = {k: v for k, v in _numbers(h.get("rates_hz")).items() if v or counts.get(k)}
-        view.errors = {k: v for k, v in _numbers(h.get("errors")).items() if v}
-        # as the service reported it: the health's own age says how old that report is
-        view.last_sample_age_s = _number(h.get("last_sample_age_s"))
-        view.state = h.get("state") if isinstance(h.get("state"), dict) else {}
-        # device services count them under one name (common/health.py); others have none
-        reconnects = counts.get(RECONNECTS)
-        view.reconnects = None if reconnects is None else int(reconnects)
-        return view
-
-
-def _plus(value: float | None, age: float) -> float | None:
-    """A duration reported `age` seconds ago, as it is now."""
-    return None if value is None else value + age
-
-
-def _numbers(v) -> dict[str, float]:
-    if not isinstance(v, dict):
-        return {}
-    return {str(k): n for k, x in v.items() if (n := _number(x)) is not None}
-
-
-# -- formatting (plain text pieces; rich only arranges them) ----------------------------------
-def fmt_age(age: float | None) -> str:
-    if age is None:
-        return "-"
-    if age < 10:
-        return f"{age:.2f} s"
-    if age < 120:
-        return f"{age:.0f} s"
-    return f"{age / 60:.0f} min"
-
-
-def fmt_num(v, digits: int = 3) -> str:
-    """A scalar for a cell: ints as they are, floats to `digits` places, None as '-'."""
-    if v is None:
-        return "-"
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            return str(v)
-        return f"{v:.{digits}f}" if v == 0 or 1e-3 <= abs(v) < 1e6 else f"{v:.{digits}g}"
-    return str(v)[:40] or "-"
-
-
-def fmt_vec(v, digits: int = 2, scale: float = 1.0) -> str:
-    vec = _vec(v)
-    if vec is None:
-        return "-"
-    return "[" + " ".join(f"{x * scale:.{digits}f}" for x in vec) + "]"
-
-
-def fmt_deg(rad) -> str:
-    n = _number(rad)
-    return "-" if n is None else f"{math.degrees(n):.1f}°"
-
-
-def fmt_map(values: dict, digits: int = 1, limit: int = 6) -> str:
-    items = [f"{k} {fmt_num(v, digits)}" for k, v in list(values.items())[:limit]]
-    if len(values) > limit:
-        items.append(f"+{len(values) - limit}")
-    return ", ".join(items) or "-"
-
-
-def gnss_cells(fix: dict) -> dict[str, str]:
-    sigma = _vec(fix.get("ecef_sigma_m"), 3)
-    status = "/".join(str(fix[k]) for k in ("pos_status", "pos_type") if fix.get(k) is not None)
-    return {
-        "fix": ("valid" if fix.get("valid") is True else "NO FIX" if fix.get("valid") is False else "?"),
-        "status": status or "-",
-        "sats": f"{fmt_num(fix.get('sats_used'))}/{fmt_num(fix.get('sats_tracked'))}",
-        "sigma": "-" if sigma is None else f"{math.sqrt(sum(x * x for x in sigma)):.2f} m",
-        "position": ("-" if _number(fix.get("lat_deg")) is None else
-                     f"{fmt_num(fix.get('lat_deg'), 7)}, {fmt_num(fix.get('lon_deg'), 7)}, "
-                     f"{fmt_num(fix.get('height_m'), 1)} m"),
-        "latency": "-" if _number(fix.get("latency_s")) is None else f"{fix['latency_s'] * 1e3:.0f} ms",
-    }
-
-
-def imu_cells(s: dict) -> dict[str, str]:
-    mag = _vec(s.get("mag_T"), 3)
-    return {
-        "accel m/s²": fmt_vec(s.get("accel_mps2")),
-        "gyro °/s": fmt_vec(s.get("gyro_radps"), 1, 180 / math.pi),
-        "|mag| µT": "-" if mag is None else f"{math.sqrt(sum(x * x for x in mag)) * 1e6:.1f}",
-        "seq": fmt_num(s.get("seq")),
-    }
-
-
-def estimator_cells(s: dict) -> dict[str, str]:
-    var = _vec(s.get("enu_var_m2"), 3)
-    att = _vec(s.get("att_var_rad2"), 3)
-    cells = {
-        "mode": str(s.get("mode", "-")),
-        "position ENU m": fmt_vec(s.get("enu_m")),
-        "σ pos": "-" if var is None else f"{math.sqrt(max(var[0], 0) + max(var[1], 0)):.2f} m",
-        "speed": "-" if _number(s.get("speed_mps")) is None else f"{s['speed_mps']:.2f} m/s",
-        "yaw": fmt_deg(s.get("yaw_rad")) + ("" if att is None else f" ± {math.degrees(math.sqrt(max(att[0], 0))):.1f}°"),
-        "heading": f"{s.get('heading_source', '-')}" + ("" if s.get("heading_valid") is not False else " (not valid)"),
-        "gnss used": fmt_num(s.get("gnss_used")),
-    }
-    if s.get("waypoint") is not None:
-        cells["waypoint"] = (f"{fmt_num(s.get('wp_distance_m'), 1)} m at {fmt_num(s.get('wp_bearing_deg'), 1)}°, "
-                             f"turn {fmt_num(s.get('wp_heading_error_deg'), 1)}°")
-    return cells
-
-
-def truth_cells(s: dict) -> dict[str, str]:
-    euler = _vec(s.get("euler_rad"), 3)
-    return {
-        "position ENU m": fmt_vec(s.get("enu_m")),
-        "speed": "-" if _number(s.get("speed_mps")) is None else f"{s['speed_mps']:.2f} m/s",
-        "yaw": "-" if euler is None else fmt_deg(euler[0]),
-        "wheel": fmt_deg(s.get("wheel_angle_rad")),
-    }
-
-
-#: steering state fields shown first when present; the rest follow as they come
-STEERING_FIRST = ("phase", "armed", "owner", "angle_deg", "target_deg", "goal_deg", "watchdog",
-                  "trip", "fault", "drive_heartbeat", "ds402", "decision", "limits")
-
-
-def generic_cells(s: dict, first=()) -> dict[str, str]:
-    """Any sample's top-level fields: angles in degrees, maps on one line."""
-    names = [k for k in first if k in s] + [k for k in s if k not in first and k not in ("t", "seq")]
-    cells = {}
-    for name in names:
-        v = s[name]
-        if isinstance(name, str) and name.endswith("_rad") and _number(v) is not None:
-            cells[name[:-4] + " °"] = f"{math.degrees(v):.2f}"
-        elif isinstance(v, dict):
-            cells[str(name)] = fmt_map(v, 2) if v else "-"
-        elif isinstance(v, (list, tuple)):
-            cells[str(name)] = fmt_vec(v, 3) if _vec(v) else (", ".join(map(str, v))[:40] or "-")
-        else:
-            cells[str(name)] = fmt_num(v)
-    return cells
-
-
-def generic_state(state: dict, limit: int = 3) -> str:
-    cells = list(generic_cells(state).items())
-    text = ", ".join(f"{k} {v}" for k, v in cells[:limit])
-    return (text + (f" +{len(cells) - limit}" if len(cells) > limit else "")) or "-"
+        health = self._aged(s.health, now, self.health_stale_s)
+        report = None if health is None else HealthReport.of(health.value, health.age_s)
+        return ServiceView(s.name, status, since, health, report)
 
 
 # -- rendering -------------------------------------------------------------------------------
@@ -410,17 +249,20 @@ def _rate(aged: Aged | None) -> str:
     return "-" if aged is None or aged.rate_hz is None else f"{aged.rate_hz:.1f}"
 
 
+def _styled(text: str, style: str = "") -> tuple[str, str]:
+    """A cell from a schema module's view: an Alert is red, whatever the row's style."""
+    return (text, "red") if isinstance(text, Alert) else (text, style)
+
+
 def _service_rows(view: View) -> Grid:
-    grid = Grid("services", "service", "status", "up", "rates Hz", "errors", "last sample",
-                "reconnects", "state", "health age")
+    columns = list(HealthReport().cells())          # what common/health.py shows of a report
+    grid = Grid("services", "service", "status", *columns, "health age")
     for s in view.services:
         style = {"alive": "green", "lost": "bold red", "no token": "yellow"}[s.status]
         status = s.status if s.status_age_s is None or s.status == "alive" else f"{s.status} {fmt_age(s.status_age_s)}"
-        stale = s.health is not None and s.health.stale
-        grid.add(s.name, (status, style), fmt_age(s.uptime_s), fmt_map(s.rates_hz),
-                 (fmt_map(s.errors, 0), "red" if s.errors else ""),
-                 (fmt_age(s.last_sample_age_s), "yellow" if stale else ""),
-                 "-" if s.reconnects is None else str(s.reconnects), generic_state(s.state),
+        stale = "yellow" if s.health is not None and s.health.stale else ""
+        cells = (s.report or HealthReport()).cells()
+        grid.add(s.name, (status, style), *(_styled(cells.get(c, "-"), stale) for c in columns),
                  _age_cell(s.health))
     if not view.services:
         grid.add(("no service seen yet", "dim"))
@@ -434,7 +276,7 @@ def _sample_rows(title: str, rows: dict[str, Aged], cells_of, label: str) -> Gri
     grid = Grid(title, label, *columns, "Hz", "age")
     for unit, aged in rows.items():
         style = "dim" if aged.stale else ""
-        grid.add(unit, *((cells[unit].get(c, "-"), style) for c in columns), _rate(aged),
+        grid.add(unit, *(_styled(cells[unit].get(c, "-"), style) for c in columns), _rate(aged),
                  _age_cell(aged))
     return grid
 
@@ -443,7 +285,7 @@ def _field_rows(title: str, aged: Aged, cells: dict[str, str], per_row: int = 4)
     """A sample with many fields (the steering state) as name/value pairs, a few a line."""
     style = "dim" if aged.stale else ""
     pairs = [("age", _age_cell(aged)), ("Hz", (_rate(aged), "")),
-             *((name, (value, style)) for name, value in cells.items())]
+             *((name, _styled(value, style)) for name, value in cells.items())]
     grid = Grid(title, *([""] * (2 * per_row)))
     for i in range(0, len(pairs), per_row):
         grid.add(*(cell for name, value in pairs[i:i + per_row] for cell in ((name, "bold"), value)))
@@ -457,16 +299,15 @@ def render(view: View, title: str = ""):
 
     grids = [_service_rows(view)]
     if view.gnss:
-        grids.append(_sample_rows("GNSS", view.gnss, gnss_cells, "unit"))
+        grids.append(_sample_rows("GNSS", view.gnss, gnss_view, "unit"))
     if view.imu:
-        grids.append(_sample_rows("IMU", view.imu, imu_cells, "unit"))
+        grids.append(_sample_rows("IMU", view.imu, imu_view, "unit"))
     if view.steering:
-        grids.append(_field_rows("steering", view.steering,
-                                 generic_cells(view.steering.value, STEERING_FIRST)))
+        grids.append(_field_rows("steering", view.steering, steering_view(view.steering.value)))
     if view.estimator:
-        grids.append(_sample_rows("estimator", {"state": view.estimator}, estimator_cells, ""))
+        grids.append(_sample_rows("estimator", {"state": view.estimator}, estimator_view, ""))
     if view.truth:
-        grids.append(_sample_rows("simulator truth", {"truth": view.truth}, truth_cells, ""))
+        grids.append(_sample_rows("simulator truth", {"truth": view.truth}, truth_view, ""))
     if view.others or view.bad:
         others = Grid("other keys", "key", "schema", "Hz", "age")
         for aged in view.others:

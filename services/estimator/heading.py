@@ -83,3 +83,110 @@ class HeadingFilter:
         self.p01 = (1 - k0) * p01
         self.p11 = p11 - k1 * p01
         return k0 * e
+
+
+class Heading:
+    """Whether the yaw is known and how well, and what corrects it: the course over ground,
+    and the magnetometer while Madgwick leaves the yaw alone (GNSS-aided driving).
+
+    The yaw itself is the attitude's. Each correction goes through the heading filter,
+    turns the attitude about up, and feeds the learnt gyro z bias back into the gyro's
+    (bounded by `max_gyro_bias_dps`: a wrong time or a wild course must not teach the gyro
+    a bias it cannot have)."""
+
+    def __init__(self, settings, attitude, counters, log):
+        self.settings, self.attitude, self.counters, self.log = settings, attitude, counters, log
+        self.filter = HeadingFilter(settings.gyro_noise_psd, settings.gyro_bias_walk_psd)
+        self.max_bias = math.radians(settings.max_gyro_bias_dps)
+        self.mag_var = math.radians(settings.mag_yaw_sigma_deg) ** 2
+        self.course_seen = False            # a course corrected the yaw
+        self.mag_seen = False               # the magnetometer did, through this filter
+
+    @property
+    def valid(self) -> bool:
+        return self.filter.valid or self.attitude.mag_heading
+
+    @property
+    def source(self) -> str:
+        mag = self.mag_seen or self.attitude.mag_heading
+        course = self.course_seen and self.filter.valid
+        return "mag+course" if mag and course else "mag" if mag else "course" if course else "none"
+
+    def yaw_var(self) -> float:
+        if self.filter.valid:
+            return self.filter.yaw_var
+        return math.radians(3.0) ** 2 if self.attitude.mag_heading else UNKNOWN_VAR
+
+    def forget(self) -> None:
+        """The yaw is no longer to be trusted (GNSS has disagreed for long): the next
+        course sets it afresh."""
+        self.filter.reset()
+        self.attitude.mag_heading = False
+        self.course_seen = self.mag_seen = False
+
+    def course(self, vel, vel_cov, yaw_then: float, history, extra_var: float = 0.0) -> None:
+        """Yaw from the direction of travel (ENU velocity `vel`, covariance `vel_cov`), when
+        moving fast enough for it to mean something; `yaw_then` is the yaw at the velocity's
+        time, `history` the trajectory the correction also turns; `extra_var` what else
+        makes the course uncertain (a time offset in a turn), rad^2."""
+        s = self.settings
+        if not s.course_heading:
+            return
+        speed = math.hypot(vel[0], vel[1])
+        if speed < s.course_min_speed_mps:
+            return
+        var = 0.5 * float(vel_cov[0, 0] + vel_cov[1, 1]) / (speed * speed) + extra_var
+        measured = course_yaw(vel[0], vel[1])
+        h, att = self.filter, self.attitude
+        if h.valid or att.mag_heading:
+            e = wrap_angle(measured - yaw_then)
+            if abs(e) > 0.5 * math.pi and self.yaw_var() < math.radians(30.0) ** 2:
+                e = wrap_angle(e + math.pi)        # reversing: the car points against its course
+            if not h.valid:
+                h.set(self.yaw_var())
+            corr = h.correct(e, var, s.gate_chi2)
+            if corr is None:
+                self.counters.gnss("course_innovation")
+                return
+        else:
+            corr = wrap_angle(measured - yaw_then)
+            h.set(var)
+            self.log.info("yaw %.1f deg from the course over ground at %.1f m/s",
+                          math.degrees(wrap_angle(att.yaw + corr)), speed)
+        self.counters.counts["course_used"] += 1
+        self.course_seen = True
+        self._turn(corr, history)
+
+    def magnetometer(self, mag, history) -> None:
+        """Yaw from the field's horizontal direction, the attitude's tilt taken as right:
+        the field turned into ENU by the attitude points where the declination says, or
+        the yaw is off by the difference. (Madgwick's MARG step does this itself while it
+        levels; this is for when it does not.)"""
+        att = self.attitude
+        r = att.rot
+        mx, my, mz = mag
+        he = r[0] * mx + r[1] * my + r[2] * mz
+        hn = r[3] * mx + r[4] * my + r[5] * mz
+        if he * he + hn * hn == 0.0:
+            return
+        # magnetic north is the declination D east of true north: azimuths counted CCW
+        d = att.declination
+        e = wrap_angle(math.atan2(math.cos(d), math.sin(d)) - math.atan2(hn, he))
+        h = self.filter
+        if not h.valid:
+            h.set(self.yaw_var())
+        corr = h.correct(e, self.mag_var, self.settings.gate_chi2)
+        if corr is None:
+            self.counters.counts["mag_rejected"] += 1
+            return
+        self.mag_seen = True
+        self._turn(corr, history)
+
+    def _turn(self, corr: float, history) -> None:
+        """Apply a yaw correction, and what the heading filter learnt of the gyro's bias."""
+        h, att = self.filter, self.attitude
+        b = att.gyro_bias
+        b[2] = max(-self.max_bias, min(self.max_bias, b[2] + h.bias))
+        h.bias = 0.0
+        att.rotate_yaw(corr)
+        history.correct(dyaw=corr)

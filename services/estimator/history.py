@@ -40,12 +40,31 @@ class TrajectoryHistory:
             c[3] += dv[0]; c[4] += dv[1]; c[5] += dv[2]
         c[6] += dyaw
 
+    def raw_position(self, t: int, x_now, t_now: int | None):
+        """The position at t on the trajectory as the IMU moved it, every position
+        correction left out (so that differences of it are the IMU's own displacements),
+        or None if t is not covered. `x_now`, `t_now`: the state now."""
+        if t_now is None or t >= t_now:
+            c = self.corr
+            return [x_now[0] - c[0], x_now[1] - c[1], x_now[2] - c[2]]
+        then = self._interpolate(t)
+        return None if then is None else then[0:3]
+
     def at(self, t: int):
         """(p, v, yaw) at time t, interpolated, or None if t is not covered."""
+        vals = self._interpolate(t)
+        if vals is None:
+            return None
+        c = self.corr
+        return ([vals[k] + c[k] for k in range(3)],
+                [vals[3 + k] + c[3 + k] for k in range(3)],
+                wrap_angle(vals[6] + c[6]))
+
+    def _interpolate(self, t: int):
+        """The stored entry values at t (corrections not added), or None."""
         entries = self.entries
         if not entries or t < entries[0][0]:
             return None
-        c = self.corr
         i = len(entries) - 1
         while i > 0 and entries[i][0] > t:
             i -= 1
@@ -57,6 +76,4 @@ class TrajectoryHistory:
             vals.append(a[7] + f * wrap_angle(b[7] - a[7]))
         else:
             vals = list(a[1:])
-        return ([vals[k] + c[k] for k in range(3)],
-                [vals[3 + k] + c[3 + k] for k in range(3)],
-                wrap_angle(vals[6] + c[6]))
+        return vals

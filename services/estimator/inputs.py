@@ -1,17 +1,23 @@
-"""What the estimator accepts: IMU samples and GNSS fixes as dicts in the agreed schemas.
+"""What the estimator accepts: IMU samples and GNSS fixes, read through their schemas.
 
-viena.imu.sample/1 (services/imu/model/sample.py) and viena.gnss.fix/1 (services/gnss/model/fix.py),
-only the fields the filter needs, checked here so that nothing non-finite or absurd ever
-reaches it. A rejected input raises `Rejected` with a short reason that the estimator
-counts under that name. Cheap on purpose: this runs for every IMU sample.
+The schema modules read a decoded sample into a typed one (`read_sample` in
+services/imu/model/sample.py, `read_fix` in services/gnss/model/fix.py), checking each
+field the estimator reads with the schema's own checks; a sample from any source will do
+(README, "Estimator"). Here come the estimator's own limits on top: the sensors' ranges, a
+position near the Earth, sigmas that mean something, a velocity that is not history. A
+rejected input raises `Rejected` with a short reason that the estimator counts under that
+name, so that nothing non-finite or absurd ever reaches the filter. Cheap on purpose:
+this runs for every IMU sample. numpy numbers and arrays are read as what they hold.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
 
 from viena.common.geodesy import plausible_ecef
+from viena.common.schema import FieldError
+from viena.services.gnss.model.fix import Fix, read_fix
+from viena.services.imu.model.sample import ImuSample, read_sample
 
 STANDARD_GRAVITY = 9.80665
 
@@ -24,29 +30,32 @@ class Rejected(Exception):
         self.reason = reason
 
 
-def _vec3(v, name: str) -> tuple[float, float, float]:
+def _read(read, sample):
+    """A typed sample, or Rejected: "non_finite" for a NaN or infinity, else "malformed".
+
+    numpy scalars and arrays (what a script's arithmetic makes) are read as the plain
+    numbers and lists they hold; only a sample that fails as it is pays for looking."""
     try:
-        a, b, c = v
-    except (TypeError, ValueError):
-        raise Rejected("malformed", f"{name} is not 3 numbers") from None
-    for x in (a, b, c):
-        tx = type(x)
-        if tx is not float and tx is not int:
-            raise Rejected("malformed", f"{name} has a {tx.__name__}")
-    if a - a == 0.0 and b - b == 0.0 and c - c == 0.0:     # false for nan and inf
-        return float(a), float(b), float(c)
-    raise Rejected("non_finite", name)
+        return read(sample)
+    except FieldError as exc:
+        plain = _without_numpy(sample)
+        if plain is not None:
+            return _read(read, plain)
+        raise Rejected("non_finite" if exc.not_finite else "malformed", str(exc)) from None
 
 
-#: int ns UTC between 1980 (the GPS epoch) and 2200, as the schemas' F.time
-T_MIN_NS, T_MAX_NS = 315_964_800_000_000_000, 7_258_118_400_000_000_000
-
-
-def _time(sample) -> int:
-    t = sample.get("t") if type(sample) is dict else None
-    if type(t) is not int or not T_MIN_NS <= t <= T_MAX_NS:
-        raise Rejected("malformed", "t is not an int ns UTC time")
-    return t
+def _without_numpy(sample):
+    """The sample with numpy values as Python ones, or None if it has none."""
+    if type(sample) is not dict:
+        return None
+    out, changed = {}, False
+    for k, v in sample.items():
+        if type(v).__module__ == "numpy":
+            v, changed = v.tolist(), True         # a scalar's .tolist() is its Python value
+        elif type(v) in (list, tuple) and any(type(x).__module__ == "numpy" for x in v):
+            v, changed = [x.tolist() if type(x).__module__ == "numpy" else x for x in v], True
+        out[k] = v
+    return out if changed else None
 
 
 @dataclass(frozen=True)
@@ -56,76 +65,44 @@ class ImuLimits:
     max_mag_T: float = 1e-3                           # 20 x the Earth's field
 
 
-def imu_values(sample, limits: ImuLimits):
-    """(t, ax, ay, az, gx, gy, gz, mag) with mag (mx, my, mz) in T or None."""
-    t = _time(sample)
-    ax, ay, az = _vec3(sample.get("accel_mps2"), "accel_mps2")
-    gx, gy, gz = _vec3(sample.get("gyro_radps"), "gyro_radps")
+def imu_sample(sample, limits: ImuLimits) -> ImuSample:
+    """The sample, typed and within the sensors' ranges."""
+    s = _read(read_sample, sample)
+    ax, ay, az = s.accel_mps2
     lim = limits.max_accel_mps2
     if not (-lim <= ax <= lim and -lim <= ay <= lim and -lim <= az <= lim):
         raise Rejected("accel_range", f"beyond {lim / STANDARD_GRAVITY:g} g")
+    gx, gy, gz = s.gyro_radps
     lim = limits.max_gyro_radps
     if not (-lim <= gx <= lim and -lim <= gy <= lim and -lim <= gz <= lim):
         raise Rejected("gyro_range")
-    m = sample.get("mag_T")
+    m = s.mag_T
     if m is not None:
-        m = _vec3(m, "mag_T")
         lim = limits.max_mag_T
         if not (-lim <= m[0] <= lim and -lim <= m[1] <= lim and -lim <= m[2] <= lim):
             raise Rejected("mag_range")
-    return t, ax, ay, az, gx, gy, gz, m
+    return s
 
 
-class Fix(NamedTuple):
-    """The parts of a viena.gnss.fix/1 sample the filter uses, checked."""
-
-    t: int
-    unit: str
-    usable: bool                 # valid and SOL_COMPUTED
-    status: str
-    ecef_m: tuple
-    ecef_sigma_m: tuple
-    vel_ecef_mps: tuple | None   # None when missing or its solution is not computed
-    vel_sigma_mps: tuple | None
-    vel_latency_s: float
-
-
-SOL_COMPUTED = "SOL_COMPUTED"
 #: a velocity older than this is history, not a measurement
 MAX_VEL_LATENCY_S = 1.0
 
 
 def gnss_fix(sample) -> Fix:
-    t = _time(sample)
-    unit = sample.get("unit", "gnss")
-    valid = sample.get("valid")
-    status = sample.get("pos_status", SOL_COMPUTED)
-    if type(unit) is not str or type(valid) is not bool or type(status) is not str:
-        raise Rejected("malformed", "unit, valid or pos_status has the wrong type")
-    ecef = _vec3(sample.get("ecef_m"), "ecef_m")
-    sigma = _vec3(sample.get("ecef_sigma_m"), "ecef_sigma_m")
-    usable = valid and status == SOL_COMPUTED
-    vel = vel_sigma = None
-    if sample.get("vel_ecef_mps") is not None:
-        vel = _vec3(sample["vel_ecef_mps"], "vel_ecef_mps")
-        if sample.get("vel_sigma_mps") is not None:
-            vel_sigma = _vec3(sample["vel_sigma_mps"], "vel_sigma_mps")
-        vel_status = sample.get("vel_status", SOL_COMPUTED)
-        if vel_status != SOL_COMPUTED or sample.get("vel_type") == "NONE":
-            vel = vel_sigma = None
-    latency = sample.get("vel_latency_s")
-    if latency is None:
-        latency = 0.0
-    elif type(latency) not in (float, int) or not 0.0 <= latency < 1e6:
+    """The fix, typed, without the velocity when that is not a measurement, and, when the
+    receiver calls it a solution, a place on Earth with real sigmas."""
+    fix = _read(read_fix, sample)
+    latency = fix.vel_latency_s
+    if not 0.0 <= latency < 1e6:
         raise Rejected("malformed", "vel_latency_s is not a latency")
-    elif latency > MAX_VEL_LATENCY_S:
-        vel = vel_sigma = None             # the receiver's velocity is stale: not a measurement
-    if usable:
-        # a solution the receiver calls good must be a place on Earth with real sigmas
-        if not plausible_ecef(*ecef):
+    if not fix.has_velocity or latency > MAX_VEL_LATENCY_S:
+        fix = fix.without_velocity()
+    if fix.usable:
+        if not plausible_ecef(*fix.ecef_m):
             raise Rejected("position_range", "ECEF position is not near the Earth's surface")
-        if min(sigma) <= 0.0 or (vel_sigma is not None and min(vel_sigma) <= 0.0):
+        sigma = fix.enu_sigma_m or fix.ecef_sigma_m
+        if min(sigma) <= 0.0 or (fix.vel_sigma_mps is not None and min(fix.vel_sigma_mps) <= 0.0):
             raise Rejected("sigma", "a sigma is zero or negative")
-        if vel is not None and max(abs(v) for v in vel) > 100.0:
+        if fix.vel_ecef_mps is not None and max(map(abs, fix.vel_ecef_mps)) > 100.0:
             raise Rejected("velocity_range", "faster than 100 m/s")
-    return Fix(t, unit, usable, status, ecef, sigma, vel, vel_sigma, float(latency))
+    return fix

@@ -1,33 +1,45 @@
-"""Loosely coupled Kalman filter in ENU: position, velocity and accelerometer bias.
+"""Loosely coupled Kalman filter in ENU: position, velocity, accelerometer bias, tilt
+error and each GNSS receiver's slowly wandering error.
 
-State x = [p_E p_N p_U, v_E v_N v_U, b_x b_y b_z]: the body origin's position and
-velocity in the local ENU frame, and the accelerometer bias in body axes. The IMU drives
-the prediction (`a_enu = R (f - b) - g`); GNSS position and velocity, non-holonomic and
-zero-velocity pseudo-measurements correct it. Attitude is not a state here (Madgwick owns
-it), so the filter is small: 9 states.
+State x = [p_E p_N p_U, v_E v_N v_U, b_x b_y b_z | t_E t_N | g_E g_N g_U per receiver]:
+- p, v: the body origin's position and velocity in the local ENU frame;
+- b: the accelerometer bias in body axes;
+- t (with `tilt=True`): the attitude's tilt error, a small rotation about the East and
+  North axes, R_true = (I + [t x]) R. It is an error state: the estimator turns the
+  attitude by it after each update and sets it back to zero (`take_tilt`). GNSS velocity
+  sees it through the specific force, dv/dt = t x f (Groves 2013, eq. 14.? of the
+  loosely coupled INS/GNSS filter), which is how the tilt is told apart from the bias:
+  the bias turns with the car, a tilt error does not;
+- g (one block per receiver, `receiver(unit)`): what makes a receiver's fixes wrong
+  together for minutes (satellite orbits and clocks, the atmosphere: seed table 5.2), a
+  first-order Gauss-Markov process of correlation time `gnss_bias_tau_s` (Brown & Hwang
+  2012, ch. 2; Groves 2013, ch. 9 on GNSS error correlation). A fix measures p + R l + g
+  plus white noise. Receivers on one car share one sky: their blocks are correlated
+  (coefficient `gnss_common_fraction`).
+
+The IMU drives the prediction (`a_enu = R (f - b) - g`); GNSS position and velocity,
+non-holonomic and zero-velocity pseudo-measurements correct it. The yaw is not a state
+(the heading filter owns it).
 
 The mean is kept in plain floats and moved every IMU sample; the covariance is moved in
 one step over the time gathered since its last move, at a slower rate and always before
 a measurement -- the usual split of strapdown mean and filter covariance, and what lets an
 offline run go through tens of thousands of IMU samples per second.
+Equations: docs/estimator.md#position-and-velocity-the-kalman-filter.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+#: the core states: position, velocity, accelerometer bias
 N = 9
 P_, V_, B_ = slice(0, 3), slice(3, 6), slice(6, 9)
+#: the tilt error states, when there are any
+T_ = slice(9, 11)
 _I3 = np.eye(3)
-# flat indices of the transition's time-dependent entries: p <- v, v <- b, p <- b
-_F_INDEX = np.array([i * N + i + 3 for i in range(3)]
-                    + [(3 + i) * N + 6 + j for i in range(3) for j in range(3)]
-                    + [i * N + 6 + j for i in range(3) for j in range(3)])
-# flat indices of the process noise entries: pp diagonal, pv and vp, vv, bb
-_Q_INDEX = np.array([i * N + i for i in range(3)] + [i * N + i + 3 for i in range(3)]
-                    + [(i + 3) * N + i for i in range(3)] + [(i + 3) * N + i + 3 for i in range(3)]
-                    + [(i + 6) * N + i + 6 for i in range(3)])
 
 
 @dataclass
@@ -35,7 +47,14 @@ class KalmanNoise:
     accel_psd: float = 0.05          # (m/s^2)^2/Hz: accelerometer noise plus tilt error
     bias_walk_psd: float = 1e-6      # (m/s^2)^2/s: accelerometer bias random walk
     free_accel_psd: float = 4.0      # (m/s^2)^2/Hz: unknown acceleration when not IMU-driven
-    bias_sigma0: float = 0.2         # m/s^2: initial accelerometer bias uncertainty
+    #: initial accelerometer bias uncertainty, body x, y, z (m/s^2): levelling takes the
+    #: horizontal bias into the tilt, so only what the tilt states do not carry is left
+    bias_sigma0: tuple = (0.05, 0.05, 0.2)
+    tilt_psd: float = 1e-7           # rad^2/s: the attitude's tilt random walk
+    tilt_sigma0: float = math.radians(0.5)
+    gnss_tau_s: float = 600.0        # correlation time of a receiver's error
+    gnss_rho: float = 0.9            # correlation of two receivers' errors (one sky)
+    gravity: float = 9.80665
 
 
 class Diverged(Exception):
@@ -43,43 +62,129 @@ class Diverged(Exception):
 
 
 class NavKalman:
-    """The filter. `x` is a list of 9 floats, `P` a 9x9 array."""
+    """The filter. `x` is a list of `n` floats, `P` an n x n array."""
 
     #: covariance beyond these is not an estimate any more (variances, m^2 and (m/s)^2)
     MAX_POS_VAR = 1e8
     MAX_VEL_VAR = 1e4
 
-    def __init__(self, noise: KalmanNoise | None = None):
+    def __init__(self, noise: KalmanNoise | None = None, tilt: bool = False):
         self.noise = noise or KalmanNoise()
-        self.x = [0.0] * N
-        self.P = np.eye(N)
+        self.tilt = tilt
+        self.core = N + (2 if tilt else 0)
+        self.receivers: dict[str, int] = {}    # unit -> first index of its error block
+        self._sigma: dict[str, tuple] = {}     # unit -> its error's stationary sigmas (E, N, U)
         self.initialized = False
+        self._size(self.core)
+
+    def _size(self, n: int) -> None:
+        self.n = n
+        self.x = [0.0] * n
+        self.P = np.eye(n)
         self._pending_dt = 0.0          # time the mean moved since the covariance last did
         self._pending_imu = False       # ... driven by the IMU (else free acceleration)
         self._pending_rot = None        # body->ENU rotation to couple the bias with
-        self._F = np.eye(N)             # transition matrix, blocks rewritten per step
+        self._f_dt = [0.0, 0.0, 0.0]    # ... and the specific force (ENU) times time
         self._flushes = 0
 
-    def initialize(self, pos, pos_cov, vel, vel_cov, bias=(0.0, 0.0, 0.0)) -> None:
-        self.x = [float(v) for v in (*pos, *vel, *bias)]
-        self.P = np.zeros((N, N))
-        self.P[P_, P_] = pos_cov
-        self.P[V_, V_] = vel_cov
-        self.P[B_, B_] = _I3 * self.noise.bias_sigma0 ** 2
+    def initialize(self, pos, pos_cov, vel, vel_cov, unit: str | None = None) -> None:
+        """Position and velocity from a fix of `unit` (white covariance `pos_cov`): the
+        fix measured p + g_unit, so p's error is minus that receiver's error (and noise)."""
+        nz = self.noise
+        self.x = [float(v) for v in (*pos, *vel)] + [0.0] * (self.n - 6)
+        P = np.zeros((self.n, self.n))
+        P[P_, P_] = pos_cov
+        P[V_, V_] = vel_cov
+        P[B_, B_] = np.diag(np.square(nz.bias_sigma0))
+        if self.tilt:
+            P[T_, T_] = np.eye(2) * nz.tilt_sigma0 ** 2
+        units = list(self.receivers)
+        for i, a in enumerate(units):
+            for b in units[i:]:
+                block = self._prior(a, b)
+                ia, ib = self.receivers[a], self.receivers[b]
+                P[ia:ia + 3, ib:ib + 3] = block
+                P[ib:ib + 3, ia:ia + 3] = block.T
+        if unit in self.receivers:
+            k = self.receivers[unit]
+            gk = P[k:k + 3, :].copy()           # cov(g_unit, .), zero for p so far
+            P[P_, :] = -gk                      # p's error is -g_unit - noise
+            P[:, P_] = -gk.T
+            P[P_, P_] = np.asarray(pos_cov) + gk[:, k:k + 3]
+        self.P = P
         self._pending_dt = 0.0
         self.initialized = True
 
     def reset(self) -> None:
         self.initialized = False
-        self._pending_dt = 0.0
+        self.receivers.clear()
+        self._sigma.clear()
+        self._size(self.core)
+
+    # -- the receivers' errors ---------------------------------------------------------------
+    def receiver(self, unit: str, sigma_enu) -> int:
+        """The first state of `unit`'s error block, made on first use with stationary
+        sigmas `sigma_enu` (m, E N U) and the prior correlation to the receivers before."""
+        k = self.receivers.get(unit)
+        if k is not None:
+            return k
+        sigma = tuple(float(v) for v in sigma_enu)
+        n = self.n
+        k = n
+        x, P = self.x + [0.0, 0.0, 0.0], np.zeros((n + 3, n + 3))
+        P[:n, :n] = self.P
+        if self.receivers:
+            # g_new = c g_first + e: what the shared sky makes of the new one, and its own part
+            first = next(iter(self.receivers))
+            f = self.receivers[first]
+            c = np.diag([self.noise.gnss_rho * a / b for a, b in zip(sigma, self._sigma[first])])
+            P[k:k + 3, :n] = c @ self.P[f:f + 3, :]
+            P[:n, k:k + 3] = P[k:k + 3, :n].T
+            P[k:k + 3, k:k + 3] = (c @ self.P[f:f + 3, f:f + 3] @ c
+                                   + np.diag(np.square(sigma)) * (1.0 - self.noise.gnss_rho ** 2))
+            x[k:k + 3] = list(c @ np.array(self.x[f:f + 3]))
+        else:
+            P[k:k + 3, k:k + 3] = np.diag(np.square(sigma))
+        pending = (self._pending_dt, self._pending_imu, self._pending_rot, self._f_dt)
+        self.n, self.x, self.P = n + 3, x, P
+        self._pending_dt, self._pending_imu, self._pending_rot, self._f_dt = pending
+        self.receivers[unit] = k
+        self._sigma[unit] = sigma
+        return k
+
+    def rescale_receiver(self, unit: str, sigma_enu) -> None:
+        """The receiver's error has another size now (its sigmas changed): the error is
+        sigma z with z the same unit-variance process, so its state and covariance scale."""
+        k = self.receivers[unit]
+        old = self._sigma[unit]
+        sigma = tuple(float(v) for v in sigma_enu)
+        if sigma == old:
+            return
+        ratios = [a / b for a, b in zip(sigma, old)]
+        P = self.P
+        for i, r in enumerate(ratios):
+            self.x[k + i] *= r
+            P[k + i, :] *= r
+            P[:, k + i] *= r
+        self._sigma[unit] = sigma
+
+    def receiver_error(self, unit: str) -> list[float]:
+        k = self.receivers.get(unit)
+        return [0.0, 0.0, 0.0] if k is None else self.x[k:k + 3]
+
+    def _prior(self, a: str, b: str) -> np.ndarray:
+        """The stationary covariance of two receivers' errors."""
+        sa, sb = self._sigma[a], self._sigma[b]
+        c = 1.0 if a == b else self.noise.gnss_rho
+        return np.diag([c * u * v for u, v in zip(sa, sb)])
 
     # -- prediction -----------------------------------------------------------------------
     def move(self, ae: float, an: float, au: float, dt: float, rot=None) -> None:
         """Move the mean by dt under ENU acceleration (ae, an, au); the covariance later.
 
         `rot` is the body->ENU rotation (9 floats, row-major) when the acceleration came from
-        the IMU, so the bias is coupled in; None means the acceleration is unknown and the
-        covariance grows as for a constant-velocity model.
+        the IMU, so the bias and tilt are coupled in; None means the acceleration is unknown
+        and the covariance grows as for a constant-velocity model.
         """
         x = self.x
         h = 0.5 * dt * dt
@@ -93,34 +198,65 @@ class NavKalman:
         if rot is not None:
             self._pending_imu = True
             self._pending_rot = rot
+            f = self._f_dt
+            f[0] += ae * dt
+            f[1] += an * dt
+            f[2] += au * dt
 
     def flush(self) -> None:
         """Move the covariance over the gathered time: P <- F P F^T + Q."""
         T = self._pending_dt
         if T <= 0.0:
             return
-        F = self._F
+        n, nz = self.n, self.noise
+        F = np.eye(n)
+        F[P_, V_] = _I3 * T
         if self._pending_imu:
-            r0, r1, r2, r3, r4, r5, r6, r7, r8 = self._pending_rot
-            h = -0.5 * T * T
-            F.flat[_F_INDEX] = (T, T, T, -T * r0, -T * r1, -T * r2, -T * r3, -T * r4, -T * r5,
-                                -T * r6, -T * r7, -T * r8, h * r0, h * r1, h * r2, h * r3, h * r4,
-                                h * r5, h * r6, h * r7, h * r8)
-            q_acc = self.noise.accel_psd
+            R = np.array(self._pending_rot).reshape(3, 3)
+            F[V_, B_] = -T * R
+            F[P_, B_] = -0.5 * T * T * R
+            if self.tilt:
+                # dv/dt = t x f, f the mean specific force in ENU over the interval
+                fe, fn, fu = (v / T for v in self._f_dt)
+                fu += nz.gravity
+                Ft = np.array(((0.0, fu), (-fu, 0.0), (fn, -fe)))
+                F[V_, T_] = T * Ft
+                F[P_, T_] = 0.5 * T * T * Ft
+            q_acc = nz.accel_psd
         else:
-            F.flat[_F_INDEX] = (T, T, T) + (0.0,) * 18
-            q_acc = self.noise.free_accel_psd
+            q_acc = nz.free_accel_psd
+        a = math.exp(-T / nz.gnss_tau_s)
+        for k in self.receivers.values():
+            F[k, k] = F[k + 1, k + 1] = F[k + 2, k + 2] = a
         P = F @ self.P @ F.T
         # white acceleration noise integrated into velocity and position, bias random walk
         q3, q2, q1 = q_acc * T ** 3 / 3.0, q_acc * T * T / 2.0, q_acc * T
-        qb = self.noise.bias_walk_psd * T
-        P.flat[_Q_INDEX] += (q3, q3, q3, q2, q2, q2, q2, q2, q2, q1, q1, q1, qb, qb, qb)
+        for i in range(3):
+            P[i, i] += q3
+            P[i, i + 3] += q2
+            P[i + 3, i] += q2
+            P[i + 3, i + 3] += q1
+            P[i + 6, i + 6] += nz.bias_walk_psd * T
+        if self.tilt:
+            P[9, 9] += nz.tilt_psd * T
+            P[10, 10] += nz.tilt_psd * T
+        if self.receivers:
+            # the receivers' errors: Q = prior (1 - a^2), so they stay at their size
+            units = list(self.receivers)
+            for i, u in enumerate(units):
+                for v in units[i:]:
+                    block = self._prior(u, v) * (1.0 - a * a)
+                    ku, kv = self.receivers[u], self.receivers[v]
+                    P[ku:ku + 3, kv:kv + 3] += block
+                    if u != v:
+                        P[kv:kv + 3, ku:ku + 3] += block.T
         self._flushes += 1
         if not self._flushes & 15:
             P = 0.5 * (P + P.T)         # what the updates' rounding made asymmetric
         self.P = P
         self._pending_dt = 0.0
         self._pending_imu = False
+        self._f_dt = [0.0, 0.0, 0.0]
         self.check()
 
     # -- measurement ------------------------------------------------------------------------
@@ -142,36 +278,54 @@ class NavKalman:
         PHt = self.P[:, sl]
         return self._gated(PHt, PHt[sl] + R, innovation, gate_chi2)
 
-    def update_fix(self, nu_p, R_p, nu_v=None, R_v=None, extra=None, gate_chi2: float | None = None):
-        """One GNSS fix in one update: position (states 0-2) and velocity (3-5), each gated
-        on its own (`gate_chi2` is per 3 dof), plus `extra` = (H, innovation, R) rows that
-        ride along ungated (the car's pseudo-measurements). Returns (pos_ok, vel_ok, dx)."""
+    def update_fix(self, nu_p, R_p, nu_v=None, R_v=None, extra=None, gate_chi2: float | None = None,
+                   unit: str | None = None):
+        """One GNSS fix of `unit` in one update: position (p plus the receiver's error) and
+        velocity, each gated on its own (`gate_chi2` is per 3 dof), plus `extra` = (H,
+        innovation, R) rows that ride along ungated (the car's pseudo-measurements).
+        Returns (pos_ok, vel_ok, dx)."""
         self.flush()
-        PHt, S, nu = self._stack(nu_p, R_p, nu_v, R_v, extra)
+        k = self.receivers.get(unit)
+        PHt, S, nu = self._stack(nu_p, R_p, nu_v, R_v, extra, k)
         # a sub-vector's Mahalanobis distance is at most the whole's: when the whole passes
         # one block's gate, every block does (the usual case, one inversion)
         ok, _, dx = self._gated(PHt, S, nu, gate_chi2)
         if ok:
             return nu_p is not None, nu_v is not None, dx
-        k = 0                                    # where the velocity rows start in S
+        j = 0                                    # where the velocity rows start in S
         if nu_p is not None:
             if quadratic(inverse_small(S[0:3, 0:3]), nu_p) > gate_chi2:
                 nu_p = None
-            k = 3
-        if nu_v is not None and quadratic(inverse_small(S[k:k + 3, k:k + 3]), nu_v) > gate_chi2:
+            j = 3
+        if nu_v is not None and quadratic(inverse_small(S[j:j + 3, j:j + 3]), nu_v) > gate_chi2:
             nu_v = None
         if nu_p is None and nu_v is None and extra is None:
             return False, False, None
-        PHt, S, nu = self._stack(nu_p, R_p, nu_v, R_v, extra)
+        PHt, S, nu = self._stack(nu_p, R_p, nu_v, R_v, extra, k)
         return nu_p is not None, nu_v is not None, self._gated(PHt, S, nu, None)[2]
 
-    def _stack(self, nu_p, R_p, nu_v, R_v, extra):
+    def position_innovation_cov(self, R_p, unit: str | None = None) -> np.ndarray:
+        """S of a position fix of `unit` with covariance R_p, as of now."""
+        self.flush()
+        H = self._h_pos(self.receivers.get(unit))
+        return H @ self.P @ H.T + R_p
+
+    def _h_pos(self, k) -> np.ndarray:
+        H = np.zeros((3, self.n))
+        H[:, P_] = _I3
+        if k is not None:
+            H[:, k:k + 3] = _I3
+        return H
+
+    def _stack(self, nu_p, R_p, nu_v, R_v, extra, k):
         """(P H^T, S, innovation) of the fix's rows stacked: position, velocity, extra."""
         blocks = []
         if nu_p is not None:
-            blocks.append((_H_POS, nu_p, R_p))
+            blocks.append((self._h_pos(k), nu_p, R_p))
         if nu_v is not None:
-            blocks.append((_H_VEL, nu_v, R_v))
+            H = np.zeros((3, self.n))
+            H[:, V_] = _I3
+            blocks.append((H, nu_v, R_v))
         if extra is not None:
             blocks.append(extra)
         H = np.concatenate([b[0] for b in blocks]) if len(blocks) > 1 else blocks[0][0]
@@ -192,9 +346,19 @@ class NavKalman:
         dx = (PHt @ w).tolist()
         self.P = self.P - PHt @ S_inv @ PHt.T
         x = self.x
-        for i in range(N):
+        for i in range(self.n):
             x[i] += dx[i]
         return True, d2, dx
+
+    def take_tilt(self) -> tuple[float, float]:
+        """The tilt error estimated so far (rad, about East and North), handed over to be
+        taken off the attitude: the state goes back to zero."""
+        if not self.tilt:
+            return 0.0, 0.0
+        x = self.x
+        te, tn = x[9], x[10]
+        x[9] = x[10] = 0.0
+        return te, tn
 
     def check(self) -> None:
         d = self.P.diagonal().tolist()
@@ -205,12 +369,6 @@ class NavKalman:
             raise Diverged("negative variance")
         if max(d[0], d[1], d[2]) > self.MAX_POS_VAR or max(d[3], d[4], d[5]) > self.MAX_VEL_VAR:
             raise Diverged("covariance blew up")
-
-
-_H_POS = np.zeros((3, N))
-_H_POS[:, P_] = np.eye(3)
-_H_VEL = np.zeros((3, N))
-_H_VEL[:, V_] = np.eye(3)
 
 
 def inverse_small(S: np.ndarray) -> np.ndarray:

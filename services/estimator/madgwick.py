@@ -63,6 +63,26 @@ class Madgwick:
         w, x, y, z = self.w, self.x, self.y, self.z
         self.w, self.x, self.y, self.z = c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w
 
+    def rotate_world(self, ex: float, ny: float, uz: float) -> None:
+        """Turn the attitude by the rotation vector (ex, ny, uz), rad, about the world's
+        East, North and Up axes: q <- dq * q (a tilt correction from the Kalman filter).
+
+        Inside, the world is magnetic north-west-up, turned from ENU by q_off about up, so
+        the vector is turned back by that angle first."""
+        c2, s2 = self._ow, self._oz              # cos and sin of half the offset angle
+        c, s = c2 * c2 - s2 * s2, 2.0 * c2 * s2  # ... and of the angle
+        vx, vy, vz = c * ex + s * ny, -s * ex + c * ny, uz
+        angle = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if angle == 0.0:
+            return
+        h = math.sin(0.5 * angle) / angle
+        dw, dx, dy, dz = math.cos(0.5 * angle), vx * h, vy * h, vz * h
+        w, x, y, z = self.w, self.x, self.y, self.z
+        w, x, y, z = (dw * w - dx * x - dy * y - dz * z, dw * x + dx * w + dy * z - dz * y,
+                      dw * y - dx * z + dy * w + dz * x, dw * z + dx * y - dy * x + dz * w)
+        n = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+        self.w, self.x, self.y, self.z = w * n, x * n, y * n, z * n
+
     # -- updates ------------------------------------------------------------------------
     def update_imu(self, gx, gy, gz, ax, ay, az, dt) -> None:
         """One step from gyro (rad/s) and accelerometer (any unit: it is normalised)."""

@@ -12,51 +12,48 @@ the estimator does is in estimator.py and runs the same offline.
 """
 from __future__ import annotations
 
-import argparse
 import queue
 import threading
 import time
+from dataclasses import dataclass
 
 from viena.common.errors import ConfigError, InputError
 from viena.common.payload import parse_payload
 from viena.common.schema import unpack
 from viena.common.service import Service, run_service
-from viena.services.estimator.estimator import DEFAULTS, Estimator
+from viena.common.settings import part, setting
+from viena.services.estimator.estimator import Estimator
 from viena.services.estimator.navigation import waypoint_from
+from viena.services.estimator.settings import EstimatorSettings
 from viena.services.estimator.state import STATE
 
-SERVICE_DEFAULTS = {
-    "imu_key": "imu/*/sample",          # relative to viena/<car>/; one IMU unit is used
-    "gnss_key": "gnss/*/fix",           # one or two receivers
-    "queue_size": 2000,                 # samples waiting for the worker (~10 s of input)
-}
+
+@dataclass(frozen=True)
+class EstimatorServiceSettings:
+    """[estimator]: where the samples come from, and the estimator's own settings."""
+    imu_key: str = setting("imu/*/sample", "IMU samples, key relative to `viena/<car>/`; one unit is used",
+                           metavar="KEYEXPR")
+    gnss_key: str = setting("gnss/*/fix", "GNSS fixes, key relative to `viena/<car>/`; one or more receivers",
+                            metavar="KEYEXPR")
+    queue_size: int = setting(2000, "samples waiting for the worker (~10 s of input)")
+    estimator: EstimatorSettings = part(EstimatorSettings, "the filters (estimator.py, also offline)")
 
 
 class EstimatorService(Service):
     """Attitude, position and velocity of the car from its IMU and GNSS receivers."""
 
     name = "estimator"
-    settings_defaults = {**SERVICE_DEFAULTS, **DEFAULTS}
-
-    @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        g = parser.add_argument_group("estimator")
-        g.add_argument("--imu-key", dest="imu_key", metavar="KEYEXPR",
-                       help=f"IMU samples, relative to viena/<car>/ (default {SERVICE_DEFAULTS['imu_key']})")
-        g.add_argument("--gnss-key", dest="gnss_key", metavar="KEYEXPR",
-                       help=f"GNSS fixes, relative to viena/<car>/ (default {SERVICE_DEFAULTS['gnss_key']})")
-        g.add_argument("--origin", nargs=3, type=float, metavar=("LAT", "LON", "H"),
-                       help="ENU origin, degrees and ellipsoidal metres (default: the first good fix)")
+    settings_class = EstimatorServiceSettings
 
     def start(self) -> None:
         s = self.settings
         try:
-            self.estimator = Estimator({k: s[k] for k in DEFAULTS}, clock=time.time_ns, log=self.log)
+            self.estimator = Estimator(s.estimator, clock=time.time_ns, log=self.log)
         except ValueError as exc:
             raise ConfigError(f"[estimator]: {exc}") from None
-        self._queue: queue.Queue = queue.Queue(maxsize=max(10, s["queue_size"]))
+        self._queue: queue.Queue = queue.Queue(maxsize=max(10, s.queue_size))
         self.state_pub = self.publisher(self.keys.key("estimator", "state"), STATE)
-        imu_key, gnss_key = self.keys.key(s["imu_key"]), self.keys.key(s["gnss_key"])
+        imu_key, gnss_key = self.keys.key(s.imu_key), self.keys.key(s.gnss_key)
         self.declare_subscriber(imu_key, lambda sample: self._enqueue("imu", sample))
         self.declare_subscriber(gnss_key, lambda sample: self._enqueue("gnss", sample))
         self.declare_subscriber(self.keys.key("estimator", "waypoint"),

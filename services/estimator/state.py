@@ -8,6 +8,9 @@ right x axis), yaw counter-clockwise from north.
 """
 from __future__ import annotations
 
+import math
+
+from viena.common.display import fmt_deg, fmt_num, fmt_unit, fmt_vec, vector
 from viena.common.schema import F, Schema
 
 MODES = ("waiting", "aligning", "attitude", "navigating", "coasting", "gnss_only")
@@ -66,3 +69,25 @@ MODES_HELP = {
     "coasting": "IMU only, GNSS lost: position drifts",
     "gnss_only": "no IMU: GNSS with a constant-velocity model",
 }
+
+
+def monitor_view(state: dict) -> dict[str, str]:
+    """How the monitor shows an estimator state (any map: what came on the state key)."""
+    var = vector(state.get("enu_var_m2"), 3)
+    att = vector(state.get("att_var_rad2"), 3)
+    yaw_sigma = "" if att is None else f" ± {math.degrees(math.sqrt(max(att[0], 0))):.1f}°"
+    cells = {
+        "mode": str(state.get("mode", "-")),
+        "position ENU m": fmt_vec(state.get("enu_m")),
+        "σ pos": "-" if var is None else f"{math.sqrt(max(var[0], 0) + max(var[1], 0)):.2f} m",
+        "speed": fmt_unit(state.get("speed_mps"), "m/s"),
+        "yaw": fmt_deg(state.get("yaw_rad")) + yaw_sigma,
+        "heading": f"{state.get('heading_source', '-')}"
+                   + ("" if state.get("heading_valid") is not False else " (not valid)"),
+        "gnss used": fmt_num(state.get("gnss_used")),
+    }
+    if state.get("waypoint") is not None:
+        cells["waypoint"] = (f"{fmt_num(state.get('wp_distance_m'), 1)} m at "
+                             f"{fmt_num(state.get('wp_bearing_deg'), 1)}°, "
+                             f"turn {fmt_num(state.get('wp_heading_error_deg'), 1)}°")
+    return cells

@@ -15,20 +15,22 @@ from __future__ import annotations
 
 import itertools
 import threading
+import time
 from abc import abstractmethod
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import serial
 
 from viena.common.errors import ConfigError
 from viena.common.service import Service, run_service
+from viena.common.settings import setting
 from viena.common.silence import SilenceWatch
 from viena.common.supervisor import Backoff, Device, DeviceSupervisor
 
 from viena.services.gnss.driver.nmea import NmeaReceiver
 from viena.services.gnss.driver.novatel import (
     CommandError, CommandTimeout, Dynamics, LogRequest, MessageId, NovatelReceiver,
-    SbasKeyword, SbasSystem, StartupConfig, Trigger,
+    SbasKeyword, SbasSystem, StartupConfig, Trigger, check_sbas,
 )
 from viena.services.gnss.model.fix import FIX, NovatelFixBuilder, fix_from_nmea
 
@@ -36,15 +38,39 @@ USAGE = __doc__
 LOGGED = ("BESTXYZ", "BESTPOS", "BESTVEL")
 CONNECT_ERRORS = (CommandError, CommandTimeout, serial.SerialException, OSError, ValueError)
 WATCH_PERIOD_S = 0.1
+#: how long after a start-up the receiver's RXCONFIG may take to confirm SBASCONTROL
+SBAS_CONFIRM_S = 5.0
 FIRST_RETRY_S = 0.05
 
 
-def _choice(settings: dict, name: str, allowed, source: str) -> str:
-    value = settings[name]
-    if value not in allowed:
-        raise ConfigError(f"{source}: setting '{name}' must be one of {sorted(allowed)}, "
-                          f"got {value!r}")
-    return value
+@dataclass(frozen=True)
+class GnssSettings:
+    """[gnss] and [gnss.<unit>]: one receiver, its start-up and how long it may be silent."""
+    port: str = setting("", "pyserial URL of the receiver: /dev/ttyUSB0, socket://HOST:PORT, "
+                            "rfc2217://HOST:PORT", metavar="URL")
+    protocol: str = setting("novatel", "NovAtel OEM4 binary or NMEA 0183", choices=("novatel", "nmea"))
+    baudrate: int = setting(115200, "working rate (NovAtel: set by COM; NMEA: opened at)",
+                            flags=("--baud",))
+    initial_baudrate: int = setting(9600, "NovAtel: the factory rate, what a break restores")
+    send_break: str = setting("auto", "NovAtel: a break first (auto: not on socket://)",
+                              choices=("auto", "on", "off"))
+    logs: tuple[str, ...] = setting(("BESTXYZ",), "NovAtel logs: BESTXYZ, or BESTPOS and BESTVEL",
+                                    choices=LOGGED)
+    trigger: str = setting("ONTIME", "NovAtel: when the logs come", choices=Trigger.__members__)
+    period_s: float = setting(0.05, "NovAtel: period of the logs (20 Hz)")
+    dynamics: str = setting("AIR", "NovAtel: receiver dynamics (the manual advises AIR)",
+                            choices=Dynamics.__members__)
+    sbas: str = setting("ENABLE", "NovAtel: SBAS corrections (\"\": leave the receiver's)",
+                        choices=("", *SbasKeyword.__members__))
+    sbas_system: str = setting("AUTO", "NovAtel: which SBAS system", choices=SbasSystem.__members__)
+    sbas_enable_value: int = setting(0, "NovAtel: the binary SBASCONTROL keyword the firmware reads "
+                                        "as ENABLE (OEM4 2.310 manual: 0; later firmware: 1); the "
+                                        "receiver's RXCONFIG confirms it", choices=(0, 1))
+    command_timeout_s: float = setting(1.0, "NovAtel: longest wait for a command's response")
+    silence_timeout_s: float = setting(1.0, "nothing decoded for this long: reconnect ...")
+    silence_epochs: float = setting(3.0, "... or this many epoch intervals, if longer (0: off)")
+    reconnect_max_s: float = setting(0.5, "longest wait between attempts to reopen the port")
+    nmea_uere_m: float = setting(3.0, "NMEA: sigmas are DOP times this user range error")
 
 
 class ReceiverDevice(Device):
@@ -93,23 +119,27 @@ class NovatelSource(ReceiverDevice):
     def __init__(self, service: "GnssService"):
         super().__init__(service)
         s = service.settings
-        self.receiver = NovatelReceiver(s["port"], command_timeout=s["command_timeout_s"],
+        self.receiver = NovatelReceiver(s.port, command_timeout=s.command_timeout_s,
                                         on_log=self._on_log, on_link_error=self.link_failed)
-        send_break = {"auto": None, "on": True, "off": False}[s["send_break"]]
-        logs = tuple(LogRequest(MessageId[name], Trigger[s["trigger"]], s["period_s"])
-                     for name in s["logs"])
+        send_break = {"auto": None, "on": True, "off": False}[s.send_break]
+        logs = tuple(LogRequest(MessageId[name], Trigger[s.trigger], s.period_s) for name in s.logs)
         self.config = StartupConfig(
-            initial_baud=s["initial_baud"], baud=s["baud"], send_break=send_break,
-            dynamics=Dynamics[s["dynamics"]],
-            sbas=SbasKeyword[s["sbas"]] if s["sbas"] else None,
-            sbas_system=SbasSystem[s["sbas_system"]], logs=logs)
-        self.builder = NovatelFixBuilder(service.unit, join_bestvel="BESTVEL" in s["logs"])
+            initial_baud=s.initial_baudrate, baud=s.baudrate, send_break=send_break,
+            dynamics=Dynamics[s.dynamics], sbas=SbasKeyword[s.sbas] if s.sbas else None,
+            sbas_system=SbasSystem[s.sbas_system], sbas_enable_value=s.sbas_enable_value,
+            logs=logs, read_config=True)
+        self._sbas_since = time.monotonic()
+        self._sbas_verdict = ""
+        service.health.error("sbas_mismatches", 0)
+        service.health.error("sbas_unconfirmed", 0)
+        self.builder = NovatelFixBuilder(service.unit, join_bestvel="BESTVEL" in s.logs)
         #: the log that marks an epoch: the one the fixes are made from
-        self.epoch_log = MessageId.BESTXYZ if "BESTXYZ" in s["logs"] else MessageId.BESTPOS
+        self.epoch_log = MessageId.BESTXYZ if "BESTXYZ" in s.logs else MessageId.BESTPOS
 
     def _start(self, again: bool) -> None:
         """The start-up sequence. Coming back after a lost link, first try the receiver
         as it most likely still is (working rate, no 2 s break), then the whole sequence."""
+        self._sbas_since, self._sbas_verdict = time.monotonic(), ""
         if again and self.config.send_break is not False:
             quick = replace(self.config, send_break=False, initial_baud=self.config.baud)
             try:
@@ -118,6 +148,32 @@ class NovatelSource(ReceiverDevice):
             except CommandTimeout:
                 self.receiver.close()
         self.receiver.startup(self.config)
+
+    def serve(self, timeout_s: float) -> None:
+        super().serve(timeout_s)
+        self._report_sbas()
+
+    def _report_sbas(self) -> None:
+        """SBAS as the receiver's RXCONFIG says it holds it, against what was asked: in
+        health (state sbas, sbas_confirmed; errors sbas_mismatches, sbas_unconfirmed) and
+        one log line each time the verdict changes."""
+        check = check_sbas(self.config, self.receiver.sbas(), wait_s=SBAS_CONFIRM_S,
+                           waited_s=time.monotonic() - self._sbas_since,
+                           request_error=self.receiver.config_request_error)
+        if check.verdict == self._sbas_verdict:
+            return
+        self._sbas_verdict = check.verdict
+        health, log = self.service.health, self.service.log
+        health.set("sbas", check.reported)
+        health.set("sbas_confirmed", check.confirmed)
+        if check.verdict == "mismatch":
+            health.error("sbas_mismatches")
+            log.error("SBAS is not as configured: %s", check.why)
+        elif check.verdict == "unconfirmed":
+            health.error("sbas_unconfirmed")
+            log.warning("SBAS setting not confirmed by the receiver: %s", check.why)
+        elif check.verdict == "confirmed":
+            log.info("the receiver holds SBASCONTROL %s", check.reported)
 
     def disconnect(self) -> None:
         self.receiver.close()
@@ -153,13 +209,14 @@ class NmeaSource(ReceiverDevice):
     def __init__(self, service: "GnssService"):
         super().__init__(service)
         s = service.settings
-        self.baud = s["baud"]
-        self.uere_m = s["nmea_uere_m"]
-        self.receiver = NmeaReceiver(s["port"], on_fix=self._on_fix,
+        self.baudrate = s.baudrate
+        self.uere_m = s.nmea_uere_m
+        self._date_problem: str | None = None      # said once, until it changes
+        self.receiver = NmeaReceiver(s.port, on_fix=self._on_fix,
                                      on_link_error=self.link_failed)
 
     def _start(self, again: bool) -> None:
-        self.receiver.open(self.baud)
+        self.receiver.open(self.baudrate)
 
     def disconnect(self) -> None:
         self.receiver.close()
@@ -171,13 +228,17 @@ class NmeaSource(ReceiverDevice):
         st = self.receiver.stats
         counts = {"sentences": st.sentences, "epochs": st.epochs,
                   "ignored_sentences": st.ignored_sentences}
+        counts["rollover_corrected"] = st.rollover_corrected
         errors = {"checksum_errors": st.checksum_errors, "parse_errors": st.parse_errors,
-                  "incomplete_epochs": st.incomplete_epochs,
+                  "incomplete_epochs": st.incomplete_epochs, "rollover_refused": st.rollover_refused,
                   "dropped_logs": self.receiver.dropped_fixes}
         return counts, errors
 
     def _on_fix(self, fix) -> None:
         self.service.silence.epoch(fix.t_host_ns)
+        if fix.date_problem and fix.date_problem != self._date_problem:
+            self.service.log.warning("fixes not valid: %s", fix.date_problem)
+        self._date_problem = fix.date_problem
 
         def build():
             sample = fix_from_nmea(fix, self.service.unit, 0, self.uere_m)
@@ -193,72 +254,36 @@ class GnssService(Service):
 
     name = "gnss"
     default_unit = "gnss0"
-    settings_defaults = {
-        "port": "",                     # pyserial URL: /dev/ttyUSB0, socket://h:p, rfc2217://
-        "protocol": "novatel",          # novatel | nmea
-        "baud": 115200,                 # working rate (NovAtel: set by COM; NMEA: opened at)
-        "initial_baud": 9600,           # NovAtel factory rate, what a break restores
-        "send_break": "auto",           # auto (not on socket://) | on | off
-        "logs": ["BESTXYZ"],            # NovAtel logs: BESTXYZ, or BESTPOS and BESTVEL
-        "trigger": "ONTIME",
-        "period_s": 0.05,               # 20 Hz
-        "dynamics": "AIR",              # AIR | LAND | FOOT (the manual advises AIR)
-        "sbas": "ENABLE",               # ENABLE | DISABLE | "" (leave the receiver's)
-        "sbas_system": "AUTO",          # NONE AUTO ANY WAAS EGNOS MSAS
-        "command_timeout_s": 1.0,
-        "silence_timeout_s": 1.0,       # nothing decoded for this long: reconnect ...
-        "silence_epochs": 3.0,          # ... or this many epoch intervals, if longer (0: off)
-        "reconnect_max_s": 0.5,         # backoff cap between attempts
-        "nmea_uere_m": 3.0,             # NMEA sigmas = DOP x this user range error
-    }
+    settings_class = GnssSettings
     description = USAGE
-
-    @classmethod
-    def add_arguments(cls, parser) -> None:
-        g = parser.add_argument_group("receiver")
-        g.add_argument("--port", dest="port", metavar="URL",
-                       help="pyserial URL of the receiver: /dev/ttyUSB0, socket://HOST:PORT, "
-                            "rfc2217://HOST:PORT")
-        g.add_argument("--protocol", dest="protocol", choices=("novatel", "nmea"),
-                       help="NovAtel OEM4 binary (default) or NMEA 0183")
-        g.add_argument("--baud", dest="baud", type=int, help="working baud rate")
 
     def __init__(self, args):
         super().__init__(args)
         s = self.settings
         source = f"{getattr(args, 'config', None) or 'flags'} [gnss]"
-        if not s["port"]:
+        if not s.port:
             raise ConfigError(f"{source}: no receiver port: give --port URL or the 'port' setting")
-        _choice(s, "protocol", ("novatel", "nmea"), source)
-        _choice(s, "send_break", ("auto", "on", "off"), source)
-        _choice(s, "trigger", Trigger.__members__, source)
-        _choice(s, "dynamics", Dynamics.__members__, source)
-        _choice(s, "sbas", ("", *SbasKeyword.__members__), source)
-        _choice(s, "sbas_system", SbasSystem.__members__, source)
-        for log in s["logs"]:
-            if log not in LOGGED:
-                raise ConfigError(f"{source}: setting 'logs' may hold {list(LOGGED)}, got {log!r}")
-        if s["protocol"] == "novatel" and not {"BESTXYZ", "BESTPOS"} & set(s["logs"]):
+        if s.protocol == "novatel" and not {"BESTXYZ", "BESTPOS"} & set(s.logs):
             raise ConfigError(f"{source}: setting 'logs' needs BESTXYZ or BESTPOS to make fixes")
         for name in ("period_s", "command_timeout_s", "silence_timeout_s", "reconnect_max_s"):
-            if not s[name] > 0:
+            if not getattr(s, name) > 0:
                 raise ConfigError(f"{source}: setting '{name}' must be positive")
-        if not s["silence_epochs"] >= 0:
+        if not s.silence_epochs >= 0:
             raise ConfigError(f"{source}: setting 'silence_epochs' must not be negative")
         self._seq = itertools.count(1)
         self.source: ReceiverDevice | None = None
         self.supervisor: DeviceSupervisor | None = None
-        self.silence = SilenceWatch(s["silence_timeout_s"], epochs=s["silence_epochs"] or None)
+        self.silence = SilenceWatch(s.silence_timeout_s, epochs=s.silence_epochs or None)
 
     # -- life ------------------------------------------------------------------------
     def start(self) -> None:
         s = self.settings
         self.fix_pub = self.publisher(self.keys.key("gnss", self.unit, "fix"), FIX)
-        self.source = (NmeaSource if s["protocol"] == "nmea" else NovatelSource)(self)
+        self.source = (NmeaSource if s.protocol == "nmea" else NovatelSource)(self)
         self.health.set("protocol", self.source.protocol)
         self.supervisor = DeviceSupervisor(
-            self.source, self.health, self.silence, url=s["port"],
-            backoff=Backoff(FIRST_RETRY_S, s["reconnect_max_s"]), tick_s=WATCH_PERIOD_S,
+            self.source, self.health, self.silence, url=s.port,
+            backoff=Backoff(FIRST_RETRY_S, s.reconnect_max_s), tick_s=WATCH_PERIOD_S,
             stopping=self.stopping).start()
 
     def stop(self) -> None:

@@ -4,6 +4,8 @@ store it in the unit's table of the calibration TOML file that viena-imu loads.
     viena calibrate imu accel six_poses.csv --unit razor0     # six-position (seed 5.5.1.2)
     viena calibrate imu gyro --port /dev/ttyUSB0 --seconds 20 # still period, from the device
     viena calibrate imu mag --live --seconds 120              # circles, from the running service
+    viena calibrate imu time drive.mcap --lever-arm -0.5 1 1.5 # clock against GNSS, from a drive
+    viena calibrate imu mount drive.mcap --lever-arm -0.5 1 1.5 # board to body rotation, from a drive
     viena calibrate imu show --unit razor0
     viena calibrate imu record out.csv --port /dev/ttyUSB0 --seconds 60
 
@@ -23,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from viena.common.errors import ConfigError, InputError, SampleError
+from viena.services.imu import drive_calibration
 from viena.services.imu.model import fitting
 from viena.services.imu.calibration_file import (DEFAULT_FILE, dumps, load_calibration, load_file,
                                                  save_calibration)
@@ -71,6 +74,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help="magnetometer hard and soft iron from turning in circles")
     m.add_argument("--method", choices=("auto", "ellipse-2d", "ellipsoid-3d"), default="auto",
                    help="auto: the 3-D ellipsoid when the data span 3-D, else the seed's 2-D ellipse")
+    for name, what in (("mount", "the board-to-body rotation, from a recorded drive with GNSS"),
+                       ("time", "the offset of the unit's timestamps, from a recorded drive with GNSS")):
+        drive_calibration.add_arguments(sub.add_parser(name, parents=[common, fit], help=what,
+                                                       description=drive_calibration.__doc__,
+                                                       formatter_class=argparse.RawDescriptionHelpFormatter))
     sub.add_parser("show", parents=[common], help="print the unit's calibration")
     r = sub.add_parser("record", parents=[common, source], help="record frames to CSV")
     r.add_argument("out", type=Path, help="CSV file to write")
@@ -128,7 +136,22 @@ def cmd_mag(args) -> int:
     return _store(args, previous.with_mag(fit), how)
 
 
-COMMANDS = {"accel": cmd_accel, "gyro": cmd_gyro, "mag": cmd_mag, "show": cmd_show, "record": cmd_record}
+def cmd_mount(args) -> int:
+    previous, how = _previous(args)
+    drive = drive_calibration.read_drive(args.recording, args.unit, args.gnss)
+    calibrated, _ = drive_calibration.measure_mount(drive, previous, args.lever_arm)
+    return _store(args, calibrated, how)
+
+
+def cmd_time(args) -> int:
+    previous, how = _previous(args)
+    drive = drive_calibration.read_drive(args.recording, args.unit, args.gnss)
+    offset_s, report = drive_calibration.measure_time(drive, previous, args.lever_arm)
+    return _store(args, previous.with_time_offset(offset_s, report), how)
+
+
+COMMANDS = {"accel": cmd_accel, "gyro": cmd_gyro, "mag": cmd_mag, "mount": cmd_mount, "time": cmd_time,
+            "show": cmd_show, "record": cmd_record}
 
 
 # -- fitting from a recording (also used by tests) -------------------------------------------

@@ -9,12 +9,13 @@ and goes on.
 """
 from __future__ import annotations
 
-import argparse
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from viena.common.errors import ConfigError
 from viena.common.service import Service, run_service
+from viena.common.settings import setting
 from viena.common.silence import SilenceWatch
 from viena.common.supervisor import Backoff, Device, DeviceSupervisor
 from viena.services.imu.calibration_file import DEFAULT_FILE, load_calibration
@@ -24,7 +25,9 @@ from viena.services.imu.model.glitch import MagGlitchFilter
 from viena.services.imu.model.sample import SAMPLE, SampleBuilder
 
 #: decoder counters reported as health errors, by their name in the driver's stats
-_ERROR_STATS = ("crc_errors", "resyncs", "bytes_skipped", "bad_frames")
+#: (out_of_range and unconfirmed: candidate frames refused although their CRC checked)
+_ERROR_STATS = ("crc_errors", "out_of_range", "unconfirmed", "resyncs", "bytes_skipped",
+                "bad_frames")
 #: how often decoder counters reach the health, board text the log, and the calibration
 #: file's time stamp is looked at
 CHORES_PERIOD_S = 0.25
@@ -62,54 +65,52 @@ class RazorDevice(Device):
         return {}, {name: getattr(stats, name, 0) for name in _ERROR_STATS}
 
 
+@dataclass(frozen=True)
+class ImuSettings:
+    """[imu] and [imu.<unit>]: one Razor board, its calibration file, how it is watched."""
+    port: str = setting("", "the unit's serial port as a pyserial URL: /dev/ttyUSB0, "
+                            "socket://HOST:PORT, ...", metavar="URL")
+    firmware: str = setting("viena", "what the board runs: viena (the car's, 52-byte frames) "
+                                     "or razor-ahrs (stock)", choices=FIRMWARES)
+    baudrate: int = setting(0, "the board's baud rate; 0: the firmware's own (500000 or 57600)")
+    calibration: str = setting(str(DEFAULT_FILE), "calibration TOML with a table per unit; a "
+                               "missing file or unit means the seed's values (\"\": none)",
+                               metavar="FILE", shown="$VIENA_CONFIG_DIR/imu_calibration.toml, "
+                               "else ~/.config/viena/imu_calibration.toml")
+    ahrs_output: str = setting("binary", "razor-ahrs only: binary (#oscb) or text (#osct) frames",
+                               choices=("binary", "text"))
+    mag_field_nT: float = setting(43810.0, "the Earth's field here (Lisbon), for the glitch filter")
+    reconnect_max_s: float = setting(1.0, "longest wait between attempts to reopen the port")
+    stall_s: float = setting(10.0, "no frame for this long on an open port: reopen it")
+
+
 class ImuService(Service):
     """Razor 9DOF IMU: calibrated body-frame samples in SI, plus the raw frame values."""
 
     name = "imu"
     default_unit = "razor0"
-    settings_defaults = {
-        "port": "",                   # pyserial URL: /dev/ttyUSB0, socket://127.0.0.1:PORT, ...
-        "firmware": "viena",          # viena (the car's, 52-byte frames) or razor-ahrs (stock)
-        "baudrate": 0,                # 0: the firmware's own (500000 or 57600)
-        "calibration": str(DEFAULT_FILE),   # TOML file with a table per unit
-        "ahrs_output": "binary",      # razor-ahrs only: binary (#oscb) or text (#osct)
-        "mag_field_nT": 43810.0,      # |Earth field| here (Lisbon), for the glitch filter
-        "reconnect_max_s": 1.0,       # longest wait between attempts to reopen the port
-        "stall_s": 10.0,              # no frame for this long on an open port: reopen it
-    }
-
-    @classmethod
-    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
-        g = parser.add_argument_group("IMU")
-        g.add_argument("--port", metavar="URL", help="the unit's serial port as a pyserial URL")
-        g.add_argument("--firmware", choices=FIRMWARES, help="what the board runs (default viena)")
-        g.add_argument("--baudrate", type=int, metavar="BAUD", help="override the firmware's baud rate")
-        g.add_argument("--calibration", metavar="FILE",
-                       help=f"calibration TOML (default {DEFAULT_FILE}); a missing file or unit "
-                            f"means the seed's values")
+    settings_class = ImuSettings
 
     def start(self) -> None:
         s = self.settings
-        if not s["port"]:
+        if not s.port:
             raise ConfigError(f"imu {self.unit}: no port: give --port URL or 'port' in [imu.{self.unit}]")
-        if s["firmware"] not in FIRMWARES:
-            raise ConfigError(f"imu {self.unit}: firmware must be one of {', '.join(FIRMWARES)}")
-        self._calibration_path = Path(s["calibration"]) if s["calibration"] else None
+        self._calibration_path = Path(s.calibration) if s.calibration else None
         self._calibration_stamp = self._file_stamp()
-        calibration, how = load_calibration(self._calibration_path, self.unit, s["firmware"])
+        calibration, how = load_calibration(self._calibration_path, self.unit, s.firmware)
         self.log.info("%s", how)
-        self.builder = SampleBuilder(self.unit, s["firmware"], SampleCalibrator(calibration),
-                                     MagGlitchFilter(field_T=s["mag_field_nT"] * 1e-9))
+        self.builder = SampleBuilder(self.unit, s.firmware, SampleCalibrator(calibration),
+                                     MagGlitchFilter(field_T=s.mag_field_nT * 1e-9))
         self.driver = self._make_driver()
         self.sample_pub = self.publisher(self.keys.key("imu", self.unit, "sample"), SAMPLE)
-        self.health.set("firmware", s["firmware"])
+        self.health.set("firmware", s.firmware)
         self.health.set("calibration", calibration.source)
         self._last_seq: int | None = None
         self._text_seen = 0
-        self.silence = SilenceWatch(s["stall_s"])
+        self.silence = SilenceWatch(s.stall_s)
         self.supervisor = DeviceSupervisor(
-            RazorDevice(self, self.driver), self.health, self.silence, url=s["port"],
-            backoff=Backoff(FIRST_RETRY_S, max(FIRST_RETRY_S, s["reconnect_max_s"])),
+            RazorDevice(self, self.driver), self.health, self.silence, url=s.port,
+            backoff=Backoff(FIRST_RETRY_S, max(FIRST_RETRY_S, s.reconnect_max_s)),
             tick_s=CHORES_PERIOD_S, stopping=self.stopping).start()
 
     def stop(self) -> None:
@@ -120,9 +121,9 @@ class ImuService(Service):
 
     def _make_driver(self) -> SerialImu:
         s = self.settings
-        cls = DRIVERS[s["firmware"]]
-        kwargs = {"output": s["ahrs_output"]} if cls is RazorAhrs else {}
-        return cls(s["port"], s["baudrate"] or None, timeout=0.1, **kwargs)
+        cls = DRIVERS[s.firmware]
+        kwargs = {"output": s.ahrs_output} if cls is RazorAhrs else {}
+        return cls(s.port, s.baudrate or None, timeout=0.1, **kwargs)
 
     # -- what the device hands over ---------------------------------------------------------
     def publish(self, reading) -> None:
@@ -157,7 +158,7 @@ class ImuService(Service):
             return
         self._calibration_stamp = stamp
         try:
-            calibration, how = load_calibration(self._calibration_path, self.unit, self.settings["firmware"])
+            calibration, how = load_calibration(self._calibration_path, self.unit, self.settings.firmware)
         except ConfigError as exc:
             self.log.error("calibration file changed but cannot be used, keeping the current one: %s", exc)
             self.health.error("calibration_errors")

@@ -30,7 +30,7 @@ KINDS = {
 def start_devices(service, car) -> list[Any]:
     devices = []
     tables = service.toml.get("sim", {})
-    for name in service.settings["devices"]:
+    for name in service.settings.devices:
         table = dict(tables.get(name, {}))
         kind = table.pop("kind", None)
         source = f"{service.args.config} [sim.{name}]"

@@ -9,40 +9,37 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import dataclass
 
 from viena.common.service import Service, run_service
+from viena.common.settings import part, setting
 from viena.services.sim.model.car import CarParams, SimCar
 from viena.services.sim.devices import start_devices
 from viena.services.sim.model.truth import IST_ORIGIN, TRUTH, truth_sample
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """[sim]: the simulated car, its truth and the device twins it serves."""
+    rate_hz: float = setting(100.0, "steps of the car, and truth samples, per second")
+    origin: tuple[float, ...] = setting(IST_ORIGIN, "the local ENU frame's origin (IST campus)",
+                                        metavar=("LAT_DEG", "LON_DEG", "HEIGHT_M"))
+    host: str = setting("127.0.0.1", "where the device twins' endpoints listen")
+    seed: int = setting(1, "random seed the twins' errors derive from")
+    devices: tuple[str, ...] = setting((), "device twins to serve, each with a `[sim.<name>]` table",
+                                       metavar="NAME", flags=("--device",))
+    car: CarParams = part(CarParams, "the car's shape and how it drives the loop")
 
 
 class SimService(Service):
     """The simulated car: kinematic bicycle model at the IST campus, driving a loop."""
 
     name = "sim"
-    settings_defaults = {
-        "rate_hz": 100.0,
-        "origin": list(IST_ORIGIN),       # lat_deg, lon_deg, height_m
-        "parked_s": 10.0,                 # standing still at start (IMU alignment)
-        "speed_min_mps": 3.0,
-        "speed_max_mps": 5.0,
-        "host": "127.0.0.1",              # where device endpoints listen
-        "seed": 1,
-        "devices": [],                    # device names, each with a [sim.<name>] table
-    }
-
-    @classmethod
-    def add_arguments(cls, parser):
-        parser.add_argument("--rate-hz", dest="rate_hz", type=float,
-                            help="truth rate (default 100)")
-        parser.add_argument("--device", dest="devices", action="append", metavar="NAME",
-                            help="device twin to serve (repeatable; default from the config)")
+    settings_class = SimSettings
 
     def start(self) -> None:
         s = self.settings
-        params = CarParams(parked_s=s["parked_s"], speed_min_mps=s["speed_min_mps"],
-                           speed_max_mps=s["speed_max_mps"])
-        self.car = SimCar(params, origin=tuple(s["origin"]))
+        self.car = SimCar(s.car, origin=s.origin)
         self._truth_pub = self.publisher(self.keys.truth, TRUTH)
         self.devices = start_devices(self, self.car)
         self._thread = threading.Thread(target=self._loop, name="sim-car", daemon=True)
@@ -57,7 +54,7 @@ class SimService(Service):
 
     def _loop(self) -> None:
         """Fixed-rate stepping on absolute deadlines, so the rate does not drift."""
-        dt = 1.0 / self.settings["rate_hz"]
+        dt = 1.0 / self.settings.rate_hz
         self.car.start_clock(time.time_ns() - int(dt * 1e9))   # the first step ends now
         next_t = time.monotonic()
         while not self.stopping.is_set():

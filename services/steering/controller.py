@@ -184,7 +184,7 @@ class SteeringController:
             self._perform(actions, now)
             publish = self.on_state is not None and now >= self._next_state
             if publish:
-                self._next_state = max(self._next_state + self.settings.state_period_s,
+                self._next_state = max(self._next_state + 1.0 / self.settings.state_rate_hz,
                                        now - self.drive.settings.sync_period_s)
         self._deliver()
         if publish:

@@ -23,6 +23,8 @@ from viena.services.sim.model.car import CarParams
 
 from estimator_helpers import deg, generate, run, settings_for, without_mag
 
+pytestmark = pytest.mark.slow  # 100 s simulated drives through the filter
+
 DRIVE = Drive(duration_s=100.0, seed=7)
 
 

@@ -291,3 +291,22 @@ def test_fuzzed_samples_never_break_the_filter_nor_make_a_nan(drive, spoils):
     state = est.state()
     STATE.encode(dict(state))
     assert state["aligned"] and state["position_valid"]
+
+
+#: the fields the README's "Estimator" section says are read: any source may send only these
+README_IMU = ("t", "unit", "accel_mps2", "gyro_radps", "mag_T")
+README_FIX = ("t", "unit", "valid", "pos_status", "ecef_m", "ecef_sigma_m", "vel_ecef_mps",
+              "vel_sigma_mps", "vel_latency_s")
+
+
+def test_samples_with_only_the_documented_fields_give_the_same_estimate(drive):
+    samples, origin = drive
+    full, bare = Estimator(settings_for(DRIVE, origin)), Estimator(settings_for(DRIVE, origin))
+    for kind, s in samples:
+        fields = README_IMU if kind == "imu" else README_FIX
+        short = {k: tuple(v) if isinstance(v, list) else v for k, v in s.items() if k in fields}
+        (full.add_imu if kind == "imu" else full.add_gnss)(s)
+        assert (bare.add_imu if kind == "imu" else bare.add_gnss)(short)
+    a, b = full.state(), bare.state()
+    assert a["gnss_used"] > 100 and a["mode"] == "navigating"
+    assert b == a

@@ -12,7 +12,7 @@ import pytest
 import zenoh
 
 from viena.common.health import HEALTH
-from vienatest import wait_until
+from vienatest import wait_for_subscriber, wait_until
 from viena.services.estimator.navigation import bearing_distance
 from benchmarks.simdrive import Drive
 from viena.services.estimator.state import STATE
@@ -20,6 +20,8 @@ from viena.services.gnss.model.fix import FIX
 from viena.services.imu.model.sample import SAMPLE
 
 from estimator_helpers import generate
+
+pytestmark = pytest.mark.slow  # the service as a process
 
 CAR = "viena/elettra"
 
@@ -67,7 +69,8 @@ def test_the_service_estimates_from_samples_on_zenoh(router, session, procs, sho
     gnss_pub = session.declare_publisher(f"{CAR}/gnss/gnss0/fix", encoding=zenoh.Encoding(FIX.encoding))
     try:
         assert wait_until(lambda: health, 15), "the service did not come up"
-        time.sleep(0.3)                     # let the subscriptions reach the router
+        for key in ("imu/imu0/sample", "gnss/gnss0/fix", "estimator/waypoint"):
+            assert wait_for_subscriber(session, f"{CAR}/{key}"), f"the service does not hear {key}"
         n_imu = 0
         for i, (kind, sample, _) in enumerate(samples):
             if kind == "imu":
@@ -130,7 +133,8 @@ def test_samples_in_json_are_not_samples(router, session, procs):
                                      lambda s: health.append(HEALTH.decode(s.payload.to_bytes())))
     try:
         assert wait_until(lambda: health, 15)
-        time.sleep(0.3)
+        assert wait_for_subscriber(session, f"{CAR}/imu/imu0/sample")
+        assert wait_for_subscriber(session, f"{CAR}/gnss/gnss0/fix")
         session.put(f"{CAR}/imu/imu0/sample", b'{"t": 1}')
         session.put(f"{CAR}/gnss/gnss0/fix", msgpack.packb({"t": "now"}))
         assert wait_until(lambda: any(h["errors"].get("bad_imu_payload") for h in health), 4)

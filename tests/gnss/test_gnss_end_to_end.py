@@ -14,6 +14,8 @@ from viena.common.rotation import quat_to_matrix
 from viena.services.gnss.model.fix import FIX
 from viena.services.sim.model.truth import TRUTH
 
+pytestmark = pytest.mark.slow  # the sim and two services as processes
+
 LEVER_ARMS = {"gnss0": (-0.5, 1.0, 1.5), "gnss1": (0.5, 1.0, 1.5)}
 
 

@@ -18,7 +18,7 @@ from viena.services.gnss.model.fix import FIX
 from viena.services.gnss.simulator import NmeaTwin, NovatelTwin
 from viena.common.twin.serial_port import SerialEndpoint, TwinWrapper
 
-pytestmark = pytest.mark.timeout(90)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(90)]  # the service as a process
 
 
 @pytest.fixture(scope="module")

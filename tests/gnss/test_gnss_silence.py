@@ -12,7 +12,8 @@ from gnss_helpers import TwinHarness, still
 from viena.common.health import Health
 from viena.common.silence import SilenceWatch
 from viena.services.gnss.driver.novatel import Log, MessageId, Trigger
-from viena.services.gnss.service import GnssService, NmeaSource, NovatelSource
+from viena.common.settings import from_mapping
+from viena.services.gnss.service import GnssSettings, NmeaSource, NovatelSource
 from viena.services.gnss.simulator import NmeaTwin, NovatelTwin
 
 T0_NS = 1_700_000_000_000_000_000
@@ -29,11 +30,11 @@ class Clock:
 
 def stub_service(clock: Clock, **settings):
     """What a source uses of its service, without zenoh: fixes are collected."""
-    s = {**GnssService.settings_defaults, "port": "loop://", **settings}
+    s = from_mapping(GnssSettings, {"port": "loop://", **settings}, "test")
     published = []
     return SimpleNamespace(
         settings=s, unit="gnss0", health=Health("gnss", "gnss0"), published=published,
-        silence=SilenceWatch(s["silence_timeout_s"], epochs=s["silence_epochs"], clock=clock),
+        silence=SilenceWatch(s.silence_timeout_s, epochs=s.silence_epochs, clock=clock),
         publish_all=lambda build: published.extend(build()))
 
 

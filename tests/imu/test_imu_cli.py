@@ -16,6 +16,7 @@ from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.imu.simulator.scenarios import fixed_truth
 
 
+@pytest.mark.slow  # the commands record for 4 s
 def test_record_and_fit_from_a_device_port(tmp_path, capsys):
     board = RazorBoard(gyro_bias_dps=(0.25, -0.15, 0.05))
     twin = RazorTwin(lambda: fixed_truth(gyro=(0, 0, 0)), board, boot_s=0.1, rate_hz=300.0)

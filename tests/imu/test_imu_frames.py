@@ -1,5 +1,6 @@
 """The VIENA firmware's frames: CRC-8/MAXIM, round trips, and a decoder that survives
-anything a serial line can do to a stream."""
+anything a serial line can do to a stream. A stream ends with the line falling silent
+(`silence()`), which confirms its last frame."""
 from __future__ import annotations
 
 import struct
@@ -29,7 +30,7 @@ BANNER = b"Initializing I2C devices...\r\nTesting device connections...\r\nADXL3
 def frames(n: int, seed: int = 0) -> list[bytes]:
     rng = np.random.default_rng(seed)
     return [encode_frame(7, rng.normal(0, 1, 3), rng.normal(0, 20, 3), rng.normal(0, 400, 3),
-                         rng.uniform(-180, 180, 3)) for _ in range(n)]
+                         rng.uniform((-180, -90, -180), (180, 90, 180))) for _ in range(n)]
 
 
 def decode_all(data: bytes, chunk: int = 64) -> tuple[list[bytes], FrameDecoder]:
@@ -38,7 +39,21 @@ def decode_all(data: bytes, chunk: int = 64) -> tuple[list[bytes], FrameDecoder]
     for k in range(0, len(data), chunk):
         for offset, _frame in d.feed(data[k:k + chunk]):
             out.append(data[offset:offset + FRAME_SIZE])
+    for offset, _frame in d.silence():
+        out.append(data[offset:offset + FRAME_SIZE])
     return out, d
+
+
+def decode_with_pauses(units: list[bytes], chunk: int) -> tuple[list[bytes], FrameDecoder]:
+    """Each unit's bytes in chunks, then a pause (silence) before the next unit."""
+    d = FrameDecoder()
+    offsets = []
+    for unit in units:
+        for k in range(0, len(unit), chunk):
+            offsets += [o for o, _ in d.feed(unit[k:k + chunk])]
+        offsets += [o for o, _ in d.silence()]
+    data = b"".join(units)
+    return [data[o:o + FRAME_SIZE] for o in offsets], d
 
 
 def test_crc8_maxim_check_value_and_the_firmware_table():
@@ -58,7 +73,7 @@ def test_frame_layout_is_the_firmware_struct():
     assert crc8_maxim(data[:51] + b"\x00") == crc
 
 
-@given(st.integers(0, 255), vec(64), vec(4000), vec(1e5), vec(720))
+@given(st.integers(0, 255), vec(18), vec(2300), vec(5e4), st.tuples(*(st.floats(-lim, lim, width=32) for lim in (180, 90, 180))))
 @settings(max_examples=200, deadline=None)
 def test_frame_round_trip(board, acc, gyr, mag, eul):
     frame = decode_frame(encode_frame(board, acc, gyr, mag, eul))
@@ -99,7 +114,7 @@ def test_any_chunking_gives_the_same_frames(cuts):
             break
         out += [data[o:o + FRAME_SIZE] for o, _ in d.feed(data[pos:pos + size])]
         pos += size
-    out += [data[o:o + FRAME_SIZE] for o, _ in d.feed(data[pos:])]
+    out += [data[o:o + FRAME_SIZE] for o, _ in d.feed(data[pos:]) + d.silence()]
     assert out == stream
 
 
@@ -119,7 +134,7 @@ def test_a_half_sync_at_a_chunk_boundary_is_not_lost():
     data = b"\x00\x13" + b"".join(stream)
     d = FrameDecoder()
     first = d.feed(data[:2 + FRAME_SIZE + 1])     # ends with the next frame's AA
-    rest = d.feed(data[2 + FRAME_SIZE + 1:])
+    rest = d.feed(data[2 + FRAME_SIZE + 1:]) + d.silence()
     assert len(first) + len(rest) == 3
 
 
@@ -157,8 +172,10 @@ def test_corrupted_streams_never_crash_and_every_clean_frame_comes_back(damages,
             del f[pos:]
         else:
             before[index] = junk
-    data = b"".join(before[i] + bytes(parts[i]) for i in range(30))
-    out, d = decode_all(data, chunk)
+    # as the firmware sends them: each frame (and what the line did to it) at once, then
+    # the line idle until the next one (1 ms of bytes, 11 ms of pause at 82.5 Hz)
+    units = [before[i] + bytes(parts[i]) for i in range(30)]
+    out, d = decode_with_pauses(units, chunk)
     clean = [stream[i] for i in range(30)
              if i not in damaged and (i == 0 or i - 1 not in reshaped) and not before[i]]
     recovered = [f for f in out if f in stream]

@@ -41,7 +41,7 @@ def test_binary_frames_count_only_after_the_synch_token():
     d = AhrsDecoder(binary=True)
     d.expect_sync(b"42")
     junk = b"#YPR=1.00,2.00,3.00\r\n" + body[:20]            # in flight before the mode change
-    out = d.feed(junk + sync_reply(b"42") + body)
+    out = d.feed(junk + sync_reply(b"42") + body) + d.silence()     # the stream pauses after it
     assert [round(f.accel_g[1], 3) for _, _, f in out] == [0.0, 0.1, 0.2, 0.3, 0.4]
     assert d.stats.bytes_skipped == len(junk)
 
@@ -50,11 +50,12 @@ def test_an_impossible_binary_frame_drops_sync_until_a_new_token():
     _, body = binary_frames(3)
     d = AhrsDecoder(binary=True)
     d.expect_sync(b"01")
-    out = d.feed(sync_reply(b"01") + body[:36] + b"\xff" * 36 + body[36:])
+    # a frame, the firmware's pause, then an impossible frame and the rest
+    out = d.feed(sync_reply(b"01") + body[:36]) + d.silence() + d.feed(b"\xff" * 36 + body[36:])
     assert len(out) == 1 and d.stats.bad_frames == 1 and d.needs_sync
     assert d.feed(body) == []                                  # ignored until re-synchronised
     d.expect_sync(b"02")
-    assert len(d.feed(sync_reply(b"02") + body)) == 3
+    assert len(d.feed(sync_reply(b"02") + body) + d.silence()) == 3
 
 
 def test_text_frames_need_all_three_lines():

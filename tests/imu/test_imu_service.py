@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import signal
 import threading
-import time
 
 import numpy as np
+import pytest
 
 from viena.common.health import HEALTH
 from vienatest import wait_until
@@ -16,6 +16,8 @@ from viena.services.imu.simulator import RazorAhrsTwin, RazorTwin
 from viena.common.twin.serial_port import SerialEndpoint
 
 from viena.services.imu.simulator.scenarios import fixed_truth
+
+pytestmark = pytest.mark.slow  # the service as a process
 
 KEY = "viena/elettra/imu/razor0"
 
@@ -58,7 +60,8 @@ def test_service_publishes_good_frames_only_and_survives_the_device_going_away(r
         assert wait_until(lambda: len(samples) >= 150, 20), "no samples"
         port = endpoint.port
         endpoint.stop()                                  # the cable is pulled
-        time.sleep(1.5)
+        assert wait_until(lambda: any(h["errors"].get("port_failures") for h in health.items), 5), \
+            "the service did not notice"
         before = len(samples)
         endpoint = SerialEndpoint(twin, port=port).start()
         assert wait_until(lambda: len(samples) > before + 20, 8), "no samples after the device came back"
@@ -98,6 +101,7 @@ def test_service_reads_the_stock_firmware_and_picks_up_a_new_calibration(router,
     twin = RazorAhrsTwin(lambda: fixed_truth(gyro=(0, 0, 0)), boot_s=0.2)
     endpoint = SerialEndpoint(twin).start()
     samples = Collector(session, f"{KEY}/sample", SAMPLE)
+    health = Collector(session, f"{KEY}/health", HEALTH)
     path = tmp_path / "cal.toml"
     proc = spawn(procs, "--connect", router, "--port", endpoint.url, "--firmware", "razor-ahrs",
                  "--calibration", str(path))
@@ -107,13 +111,17 @@ def test_service_reads_the_stock_firmware_and_picks_up_a_new_calibration(router,
         path.write_text("[razor0]\nfirmware = 'razor-ahrs'\n[razor0.gyro]\nbias_dps = [10.0, 0.0, 0.0]\n")
         assert wait_until(lambda: samples.items[-1]["gyro_radps"][0] < -0.17, 5), "not reloaded"
         path.write_text("[razor0.gyro]\nbias_dps = [1.0]\n")        # broken: keep the last good one
-        time.sleep(1.5)
+        assert wait_until(lambda: any(h["errors"].get("calibration_errors") for h in health.items), 5), \
+            "the broken file was not looked at"
+        after_refusal = len(samples)
+        assert wait_until(lambda: len(samples) > after_refusal + 5, 5)
         assert samples.items[-1]["gyro_radps"][0] < -0.17
     finally:
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=5)
         endpoint.stop()
         samples.close()
+        health.close()
     s = samples.items[-1]
     assert s["firmware"] == "razor-ahrs" and s["board_id"] is None and s["raw"]["euler_deg"] is None
     assert np.allclose(s["accel_mps2"], [0, 0, 9.8], atol=0.15)

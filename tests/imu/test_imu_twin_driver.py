@@ -19,7 +19,7 @@ def read_n(url: str, n: int, **kwargs):
 
 def test_twin_boots_then_streams_what_the_car_feels():
     truth = fixed_truth(yaw=0.8, pitch=0.05, roll=-0.1, gyro=(0.01, -0.02, 0.3))
-    twin = RazorTwin(lambda: truth, boot_s=0.3, seed=3)
+    twin = RazorTwin(lambda: truth, boot_s=0.3, seed=3, rate_hz=300.0)   # 60 frames in 0.2 s
     endpoint = SerialEndpoint(twin).start()
     try:
         readings, text, stats = read_n(endpoint.url, 60)

@@ -4,28 +4,20 @@ from __future__ import annotations
 
 import math
 import queue
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import msgpack
 import numpy as np
 
 from viena.recording import RecordingWriter
+from vienatest import VIENA, viena  # noqa: F401  (the laptop tests import them from here)
 
-VIENA = [sys.executable, "-m", "viena.cli"]
 TRUTH_KEY = "viena/elettra/sim/truth"
 SIM_HEALTH_KEY = "viena/elettra/sim/health"
 FIX_ENCODING = "application/msgpack;viena.gnss.fix/1"
 STATE_ENCODING = "application/msgpack;viena.estimator.state/1"
 STEERING_ENCODING = "application/msgpack;viena.steering.state/1"
 TRUTH_ENCODING = "application/msgpack;viena.sim.truth/1"
-
-
-def viena(*args, timeout: float = 60, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([*VIENA, *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, **kw)
 
 
 def start_sim(procs, router: str, tmp_path: Path, parked_s: float = 10.0):
@@ -45,17 +37,6 @@ def wait_for_samples(session, keyexpr: str, timeout: float = 20.0) -> None:
     finally:
         sub.undeclare()
 
-
-def wait_for_line(stream, text: str, timeout: float = 20.0) -> str:
-    """Read lines of a subprocess pipe until one contains `text`."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        line = stream.readline()
-        if text in line:
-            return line
-        if not line:
-            time.sleep(0.05)
-    raise TimeoutError(f"no line with {text!r}")
 
 
 def write_drive(path: Path, seconds: float = 20.0, seed: int = 3) -> dict:

@@ -116,6 +116,7 @@ def test_plot_model_puts_every_source_on_one_map(drive):
     assert wheel.max() == pytest.approx(math.degrees(max(s["wheel_angle_rad"] for s in truth)))
 
 
+@pytest.mark.slow  # matplotlib draws a whole drive
 def test_plot_writes_a_png(drive, tmp_path):
     import matplotlib.image
 

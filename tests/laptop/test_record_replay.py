@@ -9,41 +9,34 @@ import msgpack
 import pytest
 from mcap.reader import make_reader
 
-from vienatest import Processes, free_port, wait_for_port
-from laptop_helpers import (SIM_HEALTH_KEY, TRUTH_KEY, VIENA, start_sim, viena,
-                            wait_for_line, wait_for_samples)
+from vienatest import (Processes, open_session, start_router, wait_for_line, wait_for_subscriber,
+                       wait_until)
+from laptop_helpers import SIM_HEALTH_KEY, TRUTH_KEY, VIENA, start_sim, viena, wait_for_samples
 from viena.recording import Recording
 
-
-def start_router(procs) -> str:
-    port = free_port()
-    procs.python("-m", "viena.router", "--listen", f"tcp/127.0.0.1:{port}", "--log-level", "WARNING")
-    wait_for_port(port)
-    return f"tcp/127.0.0.1:{port}"
-
-
-def open_session(router):
-    import zenoh
-
-    from viena.common.config import load_zenoh_config
-    return zenoh.open(load_zenoh_config(mode="client", connect=[router]))
+pytestmark = pytest.mark.slow  # a router, the sim and the CLI as processes
 
 
 @pytest.fixture(scope="module")
 def drive(tmp_path_factory):
-    """Three seconds of the simulated car, recorded by `viena record` and stopped with
-    Ctrl-C (SIGINT); plus a fresh router with nothing on it, for replays."""
+    """A few seconds of the simulated car (three of its 1 Hz health samples), recorded by
+    `viena record` and stopped with Ctrl-C (SIGINT); plus a fresh router with nothing on
+    it, for replays."""
     procs = Processes()
     tmp = tmp_path_factory.mktemp("drive")
     try:
         router = start_router(procs)
         start_sim(procs, router, tmp)
+        out = tmp / "drive.mcap"
         with open_session(router) as session:
             wait_for_samples(session, SIM_HEALTH_KEY)        # the sim is up for a second
-        out = tmp / "drive.mcap"
-        rec = procs.start(*VIENA, "record", "--connect", router, "-o", out, "-q")
-        wait_for_line(rec.stderr, "recording viena/**")
-        time.sleep(3.0)
+            rec = procs.start(*VIENA, "record", "--connect", router, "-o", out, "-q")
+            wait_for_line(rec.stderr, "recording viena/**")
+            assert wait_for_subscriber(session, SIM_HEALTH_KEY)      # the router knows the recorder
+            health = queue.Queue()
+            sub = session.declare_subscriber(SIM_HEALTH_KEY, health.put)
+            assert wait_until(lambda: health.qsize() >= 3, 10)     # the recorder has two, at least
+            sub.undeclare()
         rec.send_signal(signal.SIGINT)
         _, err = rec.communicate(timeout=20)
         assert rec.returncode == 0, err
@@ -112,11 +105,11 @@ def drain(got: queue.Queue) -> list:
 def test_replay_reproduces_the_recording_with_its_timing(drive, rate):
     out, _, fresh = drive                            # no sim there: only what replay sends
     recorded = list(Recording(out).messages())
-    with open_session(fresh) as s:
+    with open_session(fresh) as s, open_session(fresh) as probe:
         sub, got = listen(s, "viena/**")
-        time.sleep(0.5)
+        assert wait_for_subscriber(probe, "viena/elettra/sim/truth")
         result = viena("replay", out, "--connect", fresh, "--rate", rate)
-        time.sleep(0.5)
+        wait_until(lambda: got.qsize() >= len(recorded), 5)
         sub.undeclare()
     assert result.returncode == 0, result.stderr
     replayed = drain(got)
@@ -134,12 +127,12 @@ def test_replay_reproduces_the_recording_with_its_timing(drive, rate):
 def test_replay_renames_the_car_and_filters_keys(drive):
     out, _, fresh = drive
     health = [m for m in Recording(out).messages() if m.key == SIM_HEALTH_KEY]
-    with open_session(fresh) as s:
+    with open_session(fresh) as s, open_session(fresh) as probe:
         sub, got = listen(s, "viena/**")
-        time.sleep(0.5)
+        assert wait_for_subscriber(probe, "viena/twin/sim/health")
         result = viena("replay", out, "--connect", fresh, "--rate", 0, "--car", "twin",
                        "--keyexpr", "viena/elettra/*/health")
-        time.sleep(0.5)
+        wait_until(lambda: got.qsize() >= len(health), 5)
         sub.undeclare()
     assert result.returncode == 0, result.stderr
     replayed = drain(got)
@@ -150,13 +143,11 @@ def test_replay_renames_the_car_and_filters_keys(drive):
 def test_replay_loop_plays_again_until_stopped(procs, drive):
     out, _, fresh = drive
     n = sum(1 for m in Recording(out).messages() if m.key == TRUTH_KEY)
-    with open_session(fresh) as s:
+    with open_session(fresh) as s, open_session(fresh) as probe:
         sub, got = listen(s, TRUTH_KEY)
-        time.sleep(0.5)
+        assert wait_for_subscriber(probe, TRUTH_KEY)
         player = procs.start(*VIENA, "replay", out, "--connect", fresh, "--rate", 10, "--loop")
-        end = time.monotonic() + 20
-        while got.qsize() < 2 * n + 1 and time.monotonic() < end:
-            time.sleep(0.05)
+        wait_until(lambda: got.qsize() >= 2 * n + 1, 20)
         player.send_signal(signal.SIGINT)
         _, err = player.communicate(timeout=10)
         sub.undeclare()

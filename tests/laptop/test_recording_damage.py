@@ -7,12 +7,12 @@ import queue
 import resource
 import signal
 import struct
-import time
 
 import msgpack
 import pytest
 
-from laptop_helpers import VIENA, viena, wait_for_line
+from laptop_helpers import VIENA, viena
+from vienatest import open_session, wait_for_line, wait_for_subscriber, wait_until
 from viena.recording import Recording, RecordingError, RecordingWriter
 
 KEY = "viena/elettra/test/sample"
@@ -143,9 +143,10 @@ def test_replay_of_a_truncated_recording_plays_the_readable_part(tmp_path, route
     readable = [m.data for m in Recording(path).messages()]
     got: queue.Queue = queue.Queue()
     sub = session.declare_subscriber(KEY, lambda s: got.put(s.payload.to_bytes()))
-    time.sleep(0.5)
+    with open_session(router) as probe:
+        assert wait_for_subscriber(probe, KEY)
     result = viena("replay", path, "--connect", router, "--rate", 0)
-    time.sleep(0.5)
+    wait_until(lambda: got.qsize() >= len(readable), 5)
     sub.undeclare()
     assert result.returncode == 1
     assert f"viena replay: {path}: stopped at byte " in result.stderr
@@ -176,7 +177,7 @@ def test_record_into_a_full_disk_says_so_and_claims_no_good_file(tmp_path, procs
     rec = procs.start(*VIENA, "record", "--connect", router, "-o", out, "-q", KEY,
                       preexec_fn=_small_disk)
     wait_for_line(rec.stderr, "recording")
-    time.sleep(0.5)
+    assert wait_for_subscriber(session, KEY)
     import zenoh
     pub = session.declare_publisher(KEY, encoding=zenoh.Encoding(ENCODING),
                                     congestion_control=zenoh.CongestionControl.BLOCK)

@@ -4,24 +4,44 @@ from __future__ import annotations
 
 import math
 import signal
-import time
 
 import numpy as np
 import pytest
 
-from vienatest import free_port, wait_for_port
+from vienatest import free_port, open_session, start_router, wait_for_subscriber, wait_until
 from viena.paths import compose_dir
 from viena.recording import KeyFilter, Recording
+from viena.services.estimator.state import STATE
+
+pytestmark = pytest.mark.slow  # a live drive and its replay, about a minute
 
 SIM_TOML = compose_dir() / "sim.toml"
 CAR = "replaytest"
+STATE_KEY = f"viena/{CAR}/estimator/state"
+IMU_KEY = f"viena/{CAR}/imu/razor0/sample"
 
 
-def start_router(procs) -> str:
-    port = free_port()
-    procs.python("-m", "viena.router", "--listen", f"tcp/127.0.0.1:{port}", "--log-level", "WARNING")
-    wait_for_port(port)
-    return f"tcp/127.0.0.1:{port}"
+class States:
+    """The estimator's states as they go by: for how long the car has driven (the span of
+    the states while moving, s) and the time of the last one."""
+
+    def __init__(self, session):
+        self.first_moving_t = self.last_moving_t = None
+        self.last_t = 0
+        self._sub = session.declare_subscriber(STATE_KEY, self._on)
+
+    def _on(self, sample) -> None:
+        state = STATE.decode(sample.payload.to_bytes())
+        if state["position_valid"] and state["speed_mps"] > 1:
+            self.first_moving_t = self.first_moving_t or state["t"]
+            self.last_moving_t = state["t"]
+        self.last_t = max(self.last_t, state["t"])
+
+    def driven_s(self) -> float:
+        return (self.last_moving_t - self.first_moving_t) / 1e9 if self.first_moving_t else 0.0
+
+    def close(self) -> None:
+        self._sub.undeclare()
 
 
 def record(procs, router: str, out, keyexpr: str):
@@ -54,7 +74,10 @@ def test_replayed_drive_through_the_estimator_reproduces_its_output(procs, tmp_p
         procs.python("-m", "viena.services.gnss.service", *common, "--unit", unit)
     procs.python("-m", "viena.services.imu.service", *common, "--unit", "razor0")
     procs.python("-m", "viena.services.estimator.service", *common)
-    time.sleep(30)                                   # 10 s parked, then driving
+    with open_session(live) as session:              # 10 s parked, then driving for 16 s
+        live_states = States(session)
+        wait_until(lambda: live_states.driven_s() >= 16.0, 120, period=0.2)
+        live_states.close()
     stop(recorder)
     recorded = states(drive)
     assert len(recorded) > 1000
@@ -64,12 +87,18 @@ def test_replayed_drive_through_the_estimator_reproduces_its_output(procs, tmp_p
     replayed_path = tmp_path / "replayed.mcap"
     estimator = procs.python("-m", "viena.services.estimator.service", "--connect", again,
                              "--car", CAR, "--config", str(SIM_TOML), "--log-level", "WARNING")
-    recorder = record(procs, again, replayed_path, f"viena/{CAR}/estimator/state")
-    time.sleep(2.0)                                  # both subscribed before the first sample
-    replay = procs.python("-m", "viena.cli", "replay", str(drive), "--connect", again,
-                          "--keyexpr", f"viena/{CAR}/imu/**", f"viena/{CAR}/gnss/*/fix")
-    assert replay.wait(timeout=120) == 0, replay.stderr.read()
-    time.sleep(1.0)
+    recorder = record(procs, again, replayed_path, STATE_KEY)
+    last_imu_t = max(m.value()["t"] for m in Recording(drive).messages(KeyFilter([IMU_KEY])))
+    with open_session(again) as session:
+        # both subscribed before the first sample
+        for key in (IMU_KEY, f"viena/{CAR}/gnss/gnss0/fix", STATE_KEY):
+            assert wait_for_subscriber(session, key), key
+        replayed_states = States(session)
+        replay = procs.python("-m", "viena.cli", "replay", str(drive), "--connect", again,
+                              "--keyexpr", f"viena/{CAR}/imu/**", f"viena/{CAR}/gnss/*/fix")
+        assert replay.wait(timeout=120) == 0, replay.stderr.read()
+        wait_until(lambda: replayed_states.last_t >= last_imu_t, 10)     # the last one is out
+        replayed_states.close()
     stop(recorder)
     estimator.send_signal(signal.SIGTERM)
     replayed = states(replayed_path)

@@ -11,13 +11,14 @@ from contextlib import contextmanager
 import pytest
 import zenoh
 
-from vienatest import free_port
+from vienatest import free_port, wait_for_queryable, wait_for_subscriber
 from viena.common.config import load_zenoh_config
 from viena.common.keystore import KeyStore
 from viena.common.secure import secure_client
 
+pytestmark = pytest.mark.slow  # a TLS router per test
+
 CAR = "viena/elettra"
-SETTLE_S = 0.5          # declarations reach the router and its peers
 
 
 def raw_client(port: int, cert=None, key=None, ca=None, scheme="tls"):
@@ -94,7 +95,8 @@ def test_a_device_publishes_only_on_its_own_keys(store, tls_router):
     with client(store, "observer", tls_router) as watcher, \
             client(store, "gnss0", tls_router) as gnss0, client(store, "gnss1", tls_router) as gnss1:
         got = received(watcher, f"{CAR}/**")
-        time.sleep(SETTLE_S)
+        for unit, session in (("gnss0", gnss0), ("gnss1", gnss1)):      # the router has it
+            assert wait_for_subscriber(session, f"{CAR}/gnss/{unit}/fix")
         gnss0.put(f"{CAR}/gnss/gnss1/fix", b"spoofed by gnss0")
         gnss0.put(f"{CAR}/imu/razor0/sample", b"spoofed by gnss0")
         gnss0.put(f"{CAR}/gnss/gnss0/fix", b"gnss0's own")
@@ -110,7 +112,8 @@ def test_an_observer_watches_and_may_stop_but_publishes_nothing_else(store, tls_
             client(store, "steering", tls_router) as steering:
         fixes = received(estimator, f"{CAR}/gnss/*/fix")
         estops = received(steering, f"{CAR}/steering/estop")
-        time.sleep(SETTLE_S)
+        assert wait_for_subscriber(observer, f"{CAR}/gnss/gnss0/fix")
+        assert wait_for_subscriber(observer, f"{CAR}/steering/estop")
         observer.put(f"{CAR}/gnss/gnss0/fix", b"spoofed fix")
         observer.put(f"{CAR}/steering/setpoint", b'{"angle_deg": 20}')
         observer.put(f"{CAR}/steering/estop", b"{}")
@@ -152,7 +155,8 @@ def test_only_a_pilot_commands_and_only_the_steering_service_answers(store, tls_
             steering_queryables(steering, b"the steering service") as seen, \
             steering_queryables(rogue_observer, b"a rogue observer"), \
             steering_queryables(rogue_pilot, b"a rogue pilot"):
-        time.sleep(SETTLE_S)
+        for name in ("arm", "setpoint", "calibration", "estop"):
+            assert wait_for_queryable(pilot, f"{CAR}/steering/{name}")
         for name in ("arm", "setpoint", "calibration"):
             assert ask(observer, f"{CAR}/steering/{name}") == []
         assert seen == []

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from vienatest import collect
+from vienatest import collect, collect_until, wait_for_port, wait_for_subscriber
 from viena.common.config import load_zenoh_config
 from viena.common.health import HEALTH
 from viena.common.secure import secure_client
@@ -24,6 +24,8 @@ from viena.services.estimator.state import STATE
 from viena.services.gnss.model.fix import FIX
 from viena.services.steering.client import SteeringClient
 from viena.services.steering.model.state import STATE as STEERING
+
+pytestmark = pytest.mark.slow  # the whole secured profile
 
 VIENA = [sys.executable, "-m", "viena.cli"]
 CAR = "viena/elettra"
@@ -42,6 +44,7 @@ def car(tmp_path_factory, store):
         assert up.returncode == 0, up.stderr
         assert "TLS and access control" in up.stderr
         saved = json.loads((Path(env["VIENA_RUN"]) / "env.json").read_text())
+        wait_for_port(int(saved["VIENA_ROUTER_PORT"]))   # supervisord says RUNNING before it listens
         yield env, int(saved["VIENA_ROUTER_PORT"])
     finally:
         subprocess.run([*VIENA, "down", "--profile", "sim"], env=env, capture_output=True, timeout=60)
@@ -61,11 +64,14 @@ def estimator_state(session) -> dict:
 
 
 def test_every_program_runs_with_its_own_certificate(store, car):
+    expected = {"sim/None", "gnss/gnss0", "gnss/gnss1", "imu/razor0", "steering/None", "estimator/None"}
+
+    def programs(healths: list[dict]) -> set[str]:
+        return {h["service"] + "/" + str(h["unit"]) for h in healths}
     with session_as(store, car, "observer") as observer:
-        seen = {h["service"] + "/" + str(h["unit"]) for h in
-                collect(observer, f"{CAR}/**/health", 40, timeout=20, decode=HEALTH.decode)}
-        assert {"sim/None", "gnss/gnss0", "gnss/gnss1", "imu/razor0", "steering/None",
-                "estimator/None"} <= seen
+        seen = programs(collect_until(observer, f"{CAR}/**/health", lambda got: expected <= programs(got),
+                                      timeout=20, decode=HEALTH.decode))
+        assert expected <= seen
         assert estimator_state(observer)["gnss_live"] == ["gnss0", "gnss1"]
 
 
@@ -95,7 +101,8 @@ def test_a_fix_spoofed_by_an_observer_never_reaches_the_estimator(store, car):
     # router restarts: it reads the identities when it starts)
     _restart_router(car[0])
     with session_as(store, car, "spoof0") as gnss, session_as(store, car, "observer") as observer:
-        time.sleep(0.5)
+        # the estimator is back on the restarted router
+        assert wait_for_subscriber(gnss, f"{CAR}/gnss/spoof0/fix", timeout=30)
         for _ in range(20):
             gnss.put(f"{CAR}/gnss/spoof0/fix", spoof_fix(real, "spoof0"))
             time.sleep(0.05)

@@ -24,7 +24,7 @@ class Rig:
         self.clock = SimClock()
         self.channel = f"steering-test-{next(_channels)}"
         self.net = canopen.Network()
-        self.net.NOTIFIER_CYCLE = 0.1
+        self.net.NOTIFIER_CYCLE = 0.01  # how long closing waits for the receive thread
         self.net.connect(interface="virtual", channel=self.channel)
         self.twin = EposTwin(self.net, twin_settings or TwinSettings(sweep=False), clock=self.clock)
         self.twin.power_on()

@@ -100,7 +100,7 @@ class SimSteering:
         self.clock = SimClock()
         channel = f"sim-steering-{next(_channels)}"
         self.net = canopen.Network()
-        self.net.NOTIFIER_CYCLE = 0.1
+        self.net.NOTIFIER_CYCLE = 0.01  # how long closing waits for the receive thread
         self.net.connect(interface="virtual", channel=channel)
         self.timers = SimTimers(self.net, self.clock)
         self.barrier = Barrier(self.net)
@@ -111,7 +111,7 @@ class SimSteering:
         self.states: list[dict] = []
         drive = EposDrive(DriveSettings(interface="virtual", channel=channel, **drive_kw), clock=self.clock)
         self.period_s = drive.settings.sync_period_s
-        self.ctl = SteeringController(drive, Envelope(), CalibrationSettings(settle_s=0.2), ControllerSettings(),
+        self.ctl = SteeringController(drive, Envelope(), CalibrationSettings(sweep_settle_s=0.2), ControllerSettings(),
                                       on_state=self.states.append, clock=self.clock, wall_ns=self.clock.wall_ns)
         self.ctl.start(threads=False)
 

@@ -3,12 +3,14 @@ from __future__ import annotations
 
 import itertools
 import socket
+import threading
 import time
 
 import can
 import pytest
 
 from viena.common.twin.slcan_hub import SlcanHub, format_frame, parse_frame
+from vienatest import wait_until
 
 _n = itertools.count()
 
@@ -29,16 +31,31 @@ def buses():
         opened.append(can.Bus(*args, **kw))
         return opened[-1]
     yield open_
-    for b in opened:
-        b.shutdown()
+    # pyserial's socket:// close waits 0.3 s "for quick reconnects": close them together
+    closing = [threading.Thread(target=b.shutdown) for b in opened]
+    for t in closing:
+        t.start()
+    for t in closing:
+        t.join()
 
 
-def recv_all(bus, timeout=0.3):
-    out, end = [], time.monotonic() + timeout
-    while time.monotonic() < end:
-        m = bus.recv(0.05)
-        if m is not None:
-            out.append(m)
+def opened(*slcan_buses) -> None:
+    """Until the hub has handled each bus's opening commands: it answers a client's
+    commands in order, so its answer to `V` comes after them."""
+    for bus in slcan_buses:
+        assert bus.get_version(2.0) == (10, 13)
+
+
+def recv_all(bus, expect: int = 0, quiet_s: float = 0.1) -> list:
+    """The frames that reach `bus`: up to 2 s for the `expect`ed ones, then `quiet_s`
+    in which any that should not come would show."""
+    out = []
+    for seconds, enough in ((2.0, lambda: len(out) >= expect), (quiet_s, lambda: False)):
+        end = time.monotonic() + seconds
+        while not enough() and time.monotonic() < end:
+            m = bus.recv(0.01)
+            if m is not None:
+                out.append(m)
     return out
 
 
@@ -52,29 +69,30 @@ def test_frames_reach_every_other_node_but_not_their_sender(hub, buses):
     a = buses(interface="slcan", channel=hub.url, bitrate=1_000_000)
     b = buses(interface="slcan", channel=hub.url, bitrate=1_000_000)
     sim = buses(interface="virtual", channel=hub.channel)
-    time.sleep(0.1)
+    opened(a, b)
     a.send(can.Message(arbitration_id=0x181, data=b"\x01\x02\x03", is_extended_id=False))
     a.send(can.Message(arbitration_id=0x1ABCDE, data=b"\xff" * 8, is_extended_id=True))
     a.send(can.Message(arbitration_id=0x701, is_remote_frame=True, dlc=1, is_extended_id=False))
     for rx in (b, sim):
-        got = recv_all(rx)
+        got = recv_all(rx, expect=3)
         assert [(m.arbitration_id, m.is_extended_id, m.is_remote_frame, bytes(m.data)) for m in got] == [
             (0x181, False, False, b"\x01\x02\x03"), (0x1ABCDE, True, False, b"\xff" * 8), (0x701, False, True, b"")]
-    assert recv_all(a, 0.1) == []
+    assert recv_all(a) == []
     sim.send(can.Message(arbitration_id=0x80, data=b"", is_extended_id=False))
-    assert [m.arbitration_id for m in recv_all(a)] == [0x80] == [m.arbitration_id for m in recv_all(b)]
+    assert [m.arbitration_id for m in recv_all(a, 1)] == [0x80] == [m.arbitration_id for m in recv_all(b, 1)]
 
 
 def test_listen_only_hears_but_cannot_talk_and_a_wrong_bitrate_hears_nothing(hub, buses):
     listener = buses(interface="slcan", channel=hub.url, listen_only=True)
     deaf = buses(interface="slcan", channel=hub.url, bitrate=500_000)
     sim = buses(interface="virtual", channel=hub.channel)
-    time.sleep(0.1)
+    opened(listener, deaf)
     listener.send(can.Message(arbitration_id=0x123, data=b"\x00", is_extended_id=False))
     deaf.send(can.Message(arbitration_id=0x124, data=b"\x00", is_extended_id=False))
+    opened(listener, deaf)                             # the hub has handled both frames
     assert recv_all(sim) == []
     sim.send(can.Message(arbitration_id=0x181, data=b"\x05", is_extended_id=False))
-    assert [m.arbitration_id for m in recv_all(listener)] == [0x181]
+    assert [m.arbitration_id for m in recv_all(listener, 1)] == [0x181]
     assert recv_all(deaf) == []
 
 
@@ -114,10 +132,11 @@ def test_a_client_that_vanishes_does_not_disturb_the_others(hub, buses):
     a = buses(interface="slcan", channel=hub.url)
     with raw_client(hub) as s:
         ask(s, b"O\r", 1)
-    time.sleep(0.1)
+    opened(a)
+    wait_until(lambda: hub.clients == 1, 2.0)          # the hub saw the other one go
     sim = buses(interface="virtual", channel=hub.channel)
     sim.send(can.Message(arbitration_id=0x181, data=b"\x01", is_extended_id=False))
-    assert [m.arbitration_id for m in recv_all(a)] == [0x181]
+    assert [m.arbitration_id for m in recv_all(a, 1)] == [0x181]
     assert hub.clients == 1
 
 

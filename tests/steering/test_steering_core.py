@@ -36,7 +36,7 @@ class Bench:
 
     def __init__(self):
         self.t = 100.0
-        self.core = SteeringCore(Envelope(), CalibrationSettings(settle_s=0.2))
+        self.core = SteeringCore(Envelope(), CalibrationSettings(sweep_settle_s=0.2))
         self.fb = Feedback(statusword=SW[ds402.SWITCH_ON_DISABLED], op_mode=POSITION_MODE, received_s=self.t)
         self.heartbeat_age_s = 0.05
         self.nmt_state: int | None = NMT_OPERATIONAL

@@ -17,6 +17,8 @@ from viena.services.steering.driver.emcy import LIFE_GUARD_ERROR
 from viena.services.steering.simulator import TwinSettings, start_twin_on_hub
 from viena.services.steering.model.state import STATE
 
+pytestmark = pytest.mark.slow  # the service as a process
+
 KEY = "viena/elettra/steering"
 
 

@@ -14,12 +14,13 @@ from viena.services.steering.controller import SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
 from viena.services.steering.model.safety import Envelope
 from viena.services.steering.simulator import make_epos_device
+from viena.services.sim.service import SimSettings
 
 FAST = {"sweep_speed_qc_s": 400_000.0, "sweep_delay_s": 0.1, "sweep_hold_s": 0.05}
 
 
 def fake_service():
-    return types.SimpleNamespace(args=types.SimpleNamespace(config="sim.toml"), settings={"host": "127.0.0.1"})
+    return types.SimpleNamespace(args=types.SimpleNamespace(config="sim.toml"), settings=SimSettings())
 
 
 @pytest.fixture
@@ -47,11 +48,12 @@ def test_bad_device_settings_are_config_errors(table, match):
         make_epos_device("epos0", table, SimCar(), fake_service())
 
 
+@pytest.mark.slow  # a calibration sweep in real time
 def test_a_setpoint_over_slcan_turns_the_simulated_car(device):
     dev, car = device
     drive = EposDrive(DriveSettings(interface="slcan", channel=dev.url,
                                     bus_options={"sleep_after_open": 0, "timeout": 0.01}))
-    ctl = SteeringController(drive, Envelope(), CalibrationSettings(settle_s=0.2))
+    ctl = SteeringController(drive, Envelope(), CalibrationSettings(sweep_settle_s=0.2))
     ctl.start()
     try:
         assert wait_until(lambda: ctl.phase == "ready", 10.0), ctl.state()
@@ -65,12 +67,13 @@ def test_a_setpoint_over_slcan_turns_the_simulated_car(device):
         ctl.stop()
 
 
+@pytest.mark.slow  # two calibration sweeps in real time
 def test_the_controller_reconnects_when_the_adapter_comes_back(device):
     from viena.common.twin.slcan_hub import SlcanHub
     dev, car = device
     drive = EposDrive(DriveSettings(interface="slcan", channel=dev.url,
                                     bus_options={"sleep_after_open": 0, "timeout": 0.01}))
-    ctl = SteeringController(drive, Envelope(), CalibrationSettings(settle_s=0.2))
+    ctl = SteeringController(drive, Envelope(), CalibrationSettings(sweep_settle_s=0.2))
     ctl.start()
     try:
         assert wait_until(lambda: ctl.phase == "ready", 10.0), ctl.state()

@@ -12,6 +12,7 @@ from viena.services.steering.model.calibration import SweepRecorder
 from viena.services.steering.driver import EDS_PATH, Emcy, ds402, emcy_name
 from viena.services.steering.driver.emcy import FOLLOWING_ERROR, LIFE_GUARD_ERROR
 from viena.services.steering.simulator.epos_twin import TwinSettings
+from vienatest import wait_until
 
 SHARED = Path(__file__).resolve().parents[3] / "shared/data/steering"
 
@@ -169,16 +170,13 @@ def test_the_heartbeat_fault_persists_while_the_host_stays_silent(configured):
 
 
 def test_a_power_cycle_announces_itself_and_restarts_the_counter(configured):
-    rig, d, twin = configured, configured.drive, configured.twin
+    d, twin = configured.drive, configured.twin
     booted = []
     d.add_bootup_listener(lambda: booted.append(True))
     twin.plant.x = 12_345.0
     twin.power_cycle()
     assert d.wait_feedback(lambda fb: True, 0.1)
-    import time
-    end = time.monotonic() + 1.0
-    while not booted and time.monotonic() < end:
-        time.sleep(0.01)
+    wait_until(lambda: booted, 1.0)
     assert booted and twin.position_qc == 0 and twin.true_zero_qc == -12_345
 
 
@@ -211,6 +209,7 @@ def test_the_twin_sweeps_lock_to_lock_after_power_up_and_the_sweep_is_accepted(m
     assert not rig.twin.sweeping and FOLLOWING_ERROR not in rig.twin.errors
 
 
+@pytest.mark.slow  # fits the plant to the recordings
 def test_the_plant_constants_reproduce_the_cars_recordings():
     pytest.importorskip("scipy")
     from viena.services.steering.simulator.fit import load_recording, rms_error

@@ -1,9 +1,21 @@
-"""NMEA 0183 GNSS receivers (the u-blox NEO-M8N of the Titans car): GGA, RMC, VTG, GSA
-(and GSV for the satellites in view), checksums verified by pynmea2.
+"""NMEA 0183 GNSS receivers (the u-blox NEO-M8N of the Titans car, a ZED-F9P, SiRF...): GGA,
+RMC, VTG, GSA (and GSV for the satellites in view), checksums verified by pynmea2.
 
 Sentences are grouped into epochs by their UTC time. An epoch is handed on as soon as it
-holds every sentence type the previous epoch held (so there is no wait for the next
-epoch's first sentence), or, failing that, when the next epoch begins.
+holds every sentence (talker and type) the previous epoch held, so there is no wait for the
+next epoch's first sentence, or, failing that, when the next epoch begins.
+
+Multi-constellation receivers speak with several talkers in one epoch: GN for the combined
+solution, GP (GPS), GL (GLONASS), GA (Galileo), GB/BD (BeiDou), GQ (QZSS). One epoch makes
+one fix: the GN position when there is one, else the best single-talker solution (highest
+quality, most satellites) - never whichever GGA came last. Satellites used are the union of
+every system's GSA; satellites tracked the union of every GSV (so tracked >= used).
+
+Dates: a receiver hit by the GPS week rollover (the 10-bit week wraps every 1024 weeks,
+19.6 years) reports dates 1024 weeks back (1999 for 2019). A date before 2024 is checked
+against the host clock, when the host clock itself is sane (2024 or later): 1024 or 2048
+weeks later lands within a day of it -> corrected and counted; otherwise the fix is
+marked with the reason and not used as valid.
 """
 from __future__ import annotations
 
@@ -46,8 +58,10 @@ class NmeaFix:
     rmc_valid: bool | None = None   # RMC status A / V
     speed_mps: float | None = None
     course_deg: float | None = None
-    talker: str = "GP"
-    sentences: tuple[str, ...] = ()
+    talker: str = "GP"              # the talker whose GGA gave the position
+    sentences: tuple[str, ...] = ()  # the sentence types the epoch held (GGA, RMC, ...)
+    talkers: tuple[str, ...] = ()    # who spoke in it (GN, GP, GL, GA, GB ...)
+    date_problem: str | None = None  # why the date cannot be trusted (the fix is not valid)
 
     @property
     def has_position(self) -> bool:
@@ -69,6 +83,8 @@ class NmeaStats:
     ignored_sentences: int = 0      # valid but not used (GLL, ZDA, ...)
     epochs: int = 0
     incomplete_epochs: int = 0      # ended without a GGA
+    rollover_corrected: int = 0     # dates moved on by 1024 weeks (the host clock agreed)
+    rollover_refused: int = 0       # dates before 2024 the host clock could not settle
 
 
 def _num(value, kind=float):
@@ -84,11 +100,27 @@ def _num(value, kind=float):
     return number
 
 
+#: no epoch of this software's life is older: an earlier date is a wrapped GPS week
+MIN_PLAUSIBLE_DATE = dt.date(2024, 1, 1)
+MIN_PLAUSIBLE_S = calendar.timegm(MIN_PLAUSIBLE_DATE.timetuple())
+WEEK_ROLLOVER_S = 1024 * 7 * 86400
+TALKER_SYSTEMS = {"GP": "GPS", "GL": "GLONASS", "GA": "Galileo", "GB": "BeiDou", "BD": "BeiDou",
+                  "GQ": "QZSS", "GI": "NavIC", "GN": "GNSS"}
+#: NMEA 4.10 system ids (GSA and GSV's last field) -> talker
+SYSTEM_IDS = {"1": "GP", "2": "GL", "3": "GA", "4": "GB", "5": "GQ", "6": "GI"}
+
+
 @dataclass
 class _Epoch:
     time: dt.time
-    seen: set = field(default_factory=set)
-    values: dict = field(default_factory=dict)
+    seen: set = field(default_factory=set)          # talker + sentence type (+ system)
+    types: set = field(default_factory=set)
+    talkers: set = field(default_factory=set)
+    values: dict = field(default_factory=dict)      # RMC, VTG, GSA DOPs
+    gga: dict = field(default_factory=dict)         # talker -> GGA values
+    used: set = field(default_factory=set)          # (system, prn) from every GSA
+    tracked: set = field(default_factory=set)       # (system, prn) from every GSV
+    in_view: dict = field(default_factory=dict)     # talker -> GSV's own count
     t_host_ns: int = 0
     emitted: bool = False
 
@@ -158,13 +190,7 @@ class NmeaDecoder:
             return out                 # timeless sentence before any epoch, or late extra
         if "date" in values:
             self._date = values["date"]
-        if kind == "GSV":
-            if values.pop("last", False):
-                epoch.seen.add(kind)
-        else:
-            epoch.seen.add(kind)
-        epoch.values.update(values)
-        epoch.values.setdefault("talker", msg.talker)
+        _collect(epoch, kind, msg.talker, values)
         epoch.t_host_ns = t_host_ns
         if self._expected and self._expected <= epoch.seen:
             out.extend(self._emit(epoch))
@@ -181,32 +207,87 @@ class NmeaDecoder:
 
     def _emit(self, epoch: _Epoch) -> list[NmeaFix]:
         epoch.emitted = True
-        v = epoch.values
-        if "GGA" not in epoch.seen:
+        if not epoch.gga:
             self.stats.incomplete_epochs += 1
             return []
         self.stats.epochs += 1
+        talker, gga = _best_gga(epoch.gga)
+        v = {**epoch.values, **gga}
+        used = len(epoch.used) if epoch.used else gga.get("sats_used")
+        tracked = len(epoch.tracked) if epoch.tracked else (sum(epoch.in_view.values()) or None)
+        if tracked is not None and used is not None:
+            tracked = max(tracked, used)
+        utc_ns, problem = self._utc_ns(epoch.time, epoch.t_host_ns)
         return [NmeaFix(
-            utc_ns=self._utc_ns(epoch.time, epoch.t_host_ns), t_host_ns=epoch.t_host_ns,
+            utc_ns=utc_ns, t_host_ns=epoch.t_host_ns,
             quality=v["quality"], lat_deg=v.get("lat"), lon_deg=v.get("lon"),
             height_msl_m=v.get("alt"), geoid_sep_m=v.get("geoid_sep"),
-            sats_used=v.get("sats_used"), sats_in_view=v.get("sats_in_view"),
+            sats_used=used, sats_in_view=tracked,
             hdop=v.get("hdop"), pdop=v.get("pdop"), vdop=v.get("vdop"),
             fix_mode=v.get("fix_mode"), rmc_valid=v.get("rmc_valid"),
-            speed_mps=v.get("speed"), course_deg=v.get("course"), talker=v["talker"],
-            sentences=tuple(sorted(epoch.seen)))]
+            speed_mps=v.get("speed"), course_deg=v.get("course"), talker=talker,
+            sentences=tuple(sorted(epoch.types)), talkers=tuple(sorted(epoch.talkers)),
+            date_problem=problem)]
 
-    def _utc_ns(self, time: dt.time, t_host_ns: int) -> int:
-        """Date from RMC; without one, the host's date, taking the day that puts the
-        epoch nearest the host clock (an epoch at 23:59:59.9 read at 00:00:00.1)."""
+    def _utc_ns(self, time: dt.time, t_host_ns: int) -> tuple[int, str | None]:
+        """(UTC ns, why the date cannot be trusted or None). Date from RMC; without one,
+        the host's date, taking the day that puts the epoch nearest the host clock (an
+        epoch at 23:59:59.9 read at 00:00:00.1)."""
         seconds = time.hour * 3600 + time.minute * 60 + time.second + time.microsecond / 1e6
-        if self._date is not None:
-            day = calendar.timegm(self._date.timetuple())
-            return int(round((day + seconds) * 1e9))
         host_s = t_host_ns / 1e9
-        day = math.floor(host_s / 86400) * 86400
-        best = min((day + k * 86400 + seconds for k in (-1, 0, 1)), key=lambda t: abs(t - host_s))
-        return int(round(best * 1e9))
+        if self._date is None:
+            day = math.floor(host_s / 86400) * 86400
+            best = min((day + k * 86400 + seconds for k in (-1, 0, 1)), key=lambda t: abs(t - host_s))
+            return int(round(best * 1e9)), None
+        utc_s = calendar.timegm(self._date.timetuple()) + seconds
+        if self._date >= MIN_PLAUSIBLE_DATE or host_s < MIN_PLAUSIBLE_S:
+            # a recent date, or no sane host clock to judge it by (the receiver is then the
+            # best clock there is)
+            return int(round(utc_s * 1e9)), None
+        for wraps in (1, 2):
+            corrected = utc_s + wraps * WEEK_ROLLOVER_S
+            if abs(corrected - host_s) < 86400:
+                self.stats.rollover_corrected += 1
+                return int(round(corrected * 1e9)), None
+        self.stats.rollover_refused += 1
+        return int(round(utc_s * 1e9)), (
+            f"receiver date {self._date} is before {MIN_PLAUSIBLE_DATE} and no whole number of "
+            f"1024-week GPS rollovers from the host clock: its week has wrapped, by how much unknown")
+
+
+def _collect(epoch: _Epoch, kind: str, talker: str, values: dict) -> None:
+    """File one sentence's values in its epoch, by talker where talkers differ."""
+    epoch.talkers.add(talker)
+    if kind != "GSV" or values["last"]:
+        epoch.types.add(kind)
+    if kind == "GGA":
+        epoch.gga[talker] = values
+        epoch.seen.add(talker + kind)
+    elif kind == "GSA":
+        system = SYSTEM_IDS.get(values.pop("system_id", None) or "", talker)
+        epoch.used.update((system, prn) for prn in values.pop("prns"))
+        fix_mode = values.get("fix_mode")
+        if fix_mode is not None and (epoch.values.get("fix_mode") or 0) > fix_mode:
+            values.pop("fix_mode")              # the best system's fix mode stands
+        epoch.values.update({k: v for k, v in values.items() if v is not None})
+        epoch.seen.add(talker + kind + (system if system != talker else ""))
+    elif kind == "GSV":
+        epoch.tracked.update((talker, prn) for prn in values["prns"])
+        if values["in_view"] is not None:
+            epoch.in_view[talker] = values["in_view"]
+        if values["last"]:
+            epoch.seen.add(talker + kind)
+    else:
+        epoch.values.update(values)
+        epoch.seen.add(talker + kind)
+
+
+def _best_gga(by_talker: dict) -> tuple[str, dict]:
+    """The combined (GN) solution if the receiver sent one, else the best single system's."""
+    if "GN" in by_talker:
+        return "GN", by_talker["GN"]
+    return max(by_talker.items(), key=lambda kv: (kv[1].get("quality") or 0, kv[1].get("sats_used") or 0,
+                                                    kv[0] == "GP"))
 
 
 def _time(value) -> dt.time | None:
@@ -260,13 +341,18 @@ def _vtg(msg):
 
 
 def _gsa(msg):
+    prns = {int(p) for p in msg.data[2:14] if p.strip()}
+    system_id = msg.data[17].strip() if len(msg.data) > 17 else None      # NMEA 4.10
     return {"fix_mode": _num(msg.mode_fix_type, int), "pdop": _num(msg.pdop),
-            "hdop": _num(msg.hdop), "vdop": _num(msg.vdop)}, None
+            "hdop": _num(msg.hdop), "vdop": _num(msg.vdop), "prns": prns,
+            "system_id": system_id}, None
 
 
 def _gsv(msg):
     total, number = _num(msg.num_messages, int), _num(msg.msg_num, int)
-    return {"sats_in_view": _num(msg.num_sv_in_view, int),
+    blocks = msg.data[3:]
+    prns = {int(blocks[i]) for i in range(0, len(blocks) - 3, 4) if blocks[i].strip()}
+    return {"in_view": _num(msg.num_sv_in_view, int), "prns": prns,
             "last": total is not None and number == total}, None
 
 

@@ -12,13 +12,14 @@ one fix; sigmas come from the DOPs times a user range error, since NMEA sends no
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import pymap3d
 
+from viena.common.display import fmt_num, norm, number
 from viena.common.geodesy import geodetic_of_ecef
-
-from viena.common.schema import F, Schema
+from viena.common.schema import F, FieldError, Schema
 
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns, utc_to_gps
 from viena.services.gnss.driver.nmea import NmeaFix
@@ -51,7 +52,93 @@ FIX = Schema("viena.gnss.fix/1", {
     "diff_age_s": F.optional(F.float),
     "sol_age_s": F.optional(F.float),
     "time_status": F.optional(F.str),   # receiver's GPS time quality (NovAtel), by name
+    # the position's sigmas as the receiver gives them, when not (only) along ECEF axes:
+    "enu_sigma_m": F.optional(F.vec(3)),  # along East, North, Up
+    "sigma_h_m": F.optional(F.float),   # along each horizontal axis (East and North alike) ...
+    "sigma_v_m": F.optional(F.float),   # ... and vertically (both or neither)
 })
+
+SOL_COMPUTED = "SOL_COMPUTED"
+
+
+class Fix(NamedTuple):
+    """A fix as a consumer reads it (the estimator): the fields the README's "Estimator"
+    section lists, which any source may publish, checked by FIX's own checks. Made by
+    `read_fix`. Vectors are tuples of floats (float64), not numpy arrays: the estimator
+    reads them in scalar code, and arrays cost it a fifth of its throughput."""
+
+    t: int
+    unit: str
+    valid: bool
+    pos_status: str
+    ecef_m: tuple[float, float, float]
+    ecef_sigma_m: tuple[float, float, float] | None     # None when only ENU sigmas came
+    vel_ecef_mps: tuple[float, float, float] | None
+    vel_sigma_mps: tuple[float, float, float] | None
+    vel_status: str
+    vel_type: str
+    vel_latency_s: float
+    #: the sigmas along East, North, Up when the fix gave them so (enu_sigma_m, or
+    #: sigma_h_m and sigma_v_m): better than ECEF ones, which lose the cross terms
+    enu_sigma_m: tuple[float, float, float] | None = None
+
+    @property
+    def usable(self) -> bool:
+        """The receiver calls the position a solution: valid and SOL_COMPUTED."""
+        return self.valid and self.pos_status == SOL_COMPUTED
+
+    @property
+    def has_velocity(self) -> bool:
+        """A velocity came with the fix and the receiver computed it."""
+        return (self.vel_ecef_mps is not None and self.vel_status == SOL_COMPUTED
+                and self.vel_type != "NONE")
+
+    def without_velocity(self) -> "Fix":
+        return self._replace(vel_ecef_mps=None, vel_sigma_mps=None)
+
+
+#: the fields a Fix is read from; a source may leave out those with a default here
+#: (and the optional ones: no velocity), e.g. a receiver with no statuses beyond `valid`;
+#: the sigmas may come along ECEF axes, along ENU, or as horizontal and vertical
+_FIX_FIELDS = FIX.reader(*Fix._fields[:-1], "enu_sigma_m", "sigma_h_m", "sigma_v_m", defaults={
+    "unit": "gnss", "pos_status": SOL_COMPUTED, "vel_status": SOL_COMPUTED, "vel_type": "",
+    "vel_latency_s": 0.0, "ecef_sigma_m": None})
+
+
+def read_fix(sample) -> Fix:
+    """The Fix in a decoded sample from any source; a FieldError (a SampleError) names
+    the field that is missing or wrong."""
+    (t, unit, valid, status, ecef, sigma, vel, vel_sigma, vel_status, vel_type, latency,
+     enu_sigma, sigma_h, sigma_v) = _FIX_FIELDS(sample)
+    if enu_sigma is None and (sigma_h is None) != (sigma_v is None):
+        name = "sigma_v_m" if sigma_v is None else "sigma_h_m"
+        raise FieldError(f"{FIX.name}: missing field {name!r} (sigma_h_m and sigma_v_m come "
+                         f"together)", name)
+    if enu_sigma is None and sigma_h is not None:
+        enu_sigma = (sigma_h, sigma_h, sigma_v)
+    if sigma is None and enu_sigma is None:
+        raise FieldError(f"{FIX.name}: missing field 'ecef_sigma_m' (or enu_sigma_m, or "
+                         f"sigma_h_m and sigma_v_m)", "ecef_sigma_m")
+    return Fix(t, unit, valid, status, tuple(ecef), None if sigma is None else tuple(sigma),
+               None if vel is None else tuple(vel), None if vel_sigma is None else tuple(vel_sigma),
+               vel_status, vel_type, latency, None if enu_sigma is None else tuple(enu_sigma))
+
+
+def monitor_view(fix: dict) -> dict[str, str]:
+    """How the monitor shows a fix (any map: what came on a fix key)."""
+    sigma = norm(fix.get("ecef_sigma_m"), 3)
+    status = "/".join(str(fix[k]) for k in ("pos_status", "pos_type") if fix.get(k) is not None)
+    latency_s = number(fix.get("latency_s"))
+    return {
+        "fix": ("valid" if fix.get("valid") is True else "NO FIX" if fix.get("valid") is False else "?"),
+        "status": status or "-",
+        "sats": f"{fmt_num(fix.get('sats_used'))}/{fmt_num(fix.get('sats_tracked'))}",
+        "sigma": "-" if sigma is None else f"{sigma:.2f} m",
+        "position": ("-" if number(fix.get("lat_deg")) is None else
+                     f"{fmt_num(fix.get('lat_deg'), 7)}, {fmt_num(fix.get('lon_deg'), 7)}, "
+                     f"{fmt_num(fix.get('height_m'), 1)} m"),
+        "latency": "-" if latency_s is None else f"{latency_s * 1e3:.0f} ms",
+    }
 
 WGS84 = pymap3d.Ellipsoid.from_name("wgs84")
 #: The receiver's "no solution" position (seen in the car's data): X=100, Y=Z=0.
@@ -128,6 +215,7 @@ def fix_from_bestpos(pos: LogMessage, vel: LogMessage | None, unit: str, seq: in
         "ecef_m": [float(x), float(y), float(z)],
         "ecef_sigma_m": enu_sigma_to_ecef((p.lon_sigma_m, p.lat_sigma_m, p.height_sigma_m),
                                           lat, lon),
+        "enu_sigma_m": [float(p.lon_sigma_m), float(p.lat_sigma_m), float(p.height_sigma_m)],
         "lat_deg": lat, "lon_deg": lon, "height_m": h,
         "sats_tracked": p.sats_tracked, "sats_used": p.sats_used,
         "diff_age_s": float(p.diff_age_s), "sol_age_s": float(p.sol_age_s),
@@ -218,10 +306,12 @@ def fix_from_nmea(fix: NmeaFix, unit: str, seq: int, uere_m: float = 3.0) -> dic
     sigma_h = hdop * uere_m / math.sqrt(2.0)
     sample = {
         "seq": seq, "unit": unit, "protocol": "nmea",
-        "valid": status == "SOL_COMPUTED" and fix.fix_mode != 1,
+        # a date the rollover check could not settle is no time to fuse a fix at
+        "valid": status == "SOL_COMPUTED" and fix.fix_mode != 1 and fix.date_problem is None,
         "pos_status": status, "pos_type": kind,
         "ecef_m": [float(x), float(y), float(z)],
         "ecef_sigma_m": enu_sigma_to_ecef((sigma_h, sigma_h, vdop * uere_m), lat, lon),
+        "enu_sigma_m": [sigma_h, sigma_h, vdop * uere_m],
         "vel_sigma_mps": None,
         "lat_deg": lat, "lon_deg": lon, "height_m": h,
         "sats_tracked": fix.sats_in_view if fix.sats_in_view is not None else (fix.sats_used or 0),

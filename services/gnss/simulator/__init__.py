@@ -8,17 +8,23 @@ The sim builds them from its settings (``[sim.<name>]`` tables, see ``TWIN_SETTI
     port = 0                         # TCP port (0 = any free one)
     lever_arm_m = [-0.4, 1.0, 1.5]   # antenna in the body frame (x right, y forward, z up)
     replay = ""                      # "" live from truth; "drive" = the 2016 drive; or a CSV
+
+All live twins of one simulated car share one sky (`CommonErrors`: satellite clock, orbit
+and atmosphere errors), drawn from the sim's seed; each keeps its own multipath and noise.
 """
 from __future__ import annotations
 
+import weakref
 import zlib
 from pathlib import Path
+
+import numpy as np
 
 from viena.common.config import merge_settings
 from viena.common.errors import ConfigError
 from viena.common.twin.serial_port import SerialEndpoint
 
-from .errors import GnssErrorModel, SkyModel
+from .errors import CommonErrors, GnssErrorModel, SkyModel
 from .nmea_twin import NmeaTwin
 from .novatel_twin import NovatelTwin
 from .replay import DRIVE_CSV, DriveReplay, RecordedEpoch, load_drive
@@ -37,7 +43,21 @@ TWIN_SETTINGS = {
     "replay_loop": True,
     "replay_retime": True,           # move the recording's epochs to the present
     "rate_hz": 10.0,                 # NMEA only: epochs per second
+    "shared_sky": True,              # the car's sky: its receivers share clock, orbit, atmosphere
+    "sbas_enable_value": 0,          # NovAtel only: the binary SBASCONTROL keyword its firmware
+                                     # reads as ENABLE (OEM4 2.310 manual: 0; later firmware: 1)
 }
+
+#: one sky per simulated car
+_SKIES: "weakref.WeakKeyDictionary[object, CommonErrors]" = weakref.WeakKeyDictionary()
+
+
+def car_sky(car, seed: int) -> CommonErrors:
+    """The error sources every receiver on `car` shares, made on first use."""
+    sky = _SKIES.get(car)
+    if sky is None:
+        sky = _SKIES[car] = CommonErrors(np.random.default_rng([seed, zlib.crc32(b"sky")]))
+    return sky
 
 
 def _replay(value: str, source: str):
@@ -50,17 +70,20 @@ def _replay(value: str, source: str):
         raise ConfigError(f"{source}: cannot replay {str(path)!r}: {exc}") from None
 
 
-def _common(name: str, table: dict, service) -> tuple[dict, dict]:
+def _common(name: str, table: dict, car, service) -> tuple[dict, dict]:
     source = f"{getattr(service.args, 'config', None)} [sim.{name}]"
     s = merge_settings(TWIN_SETTINGS, table, source)
     if len(s["lever_arm_m"]) != 3:
         raise ConfigError(f"{source}: setting 'lever_arm_m' must be 3 numbers")
     seed = s["seed"] if s["seed"] >= 0 else (
-        int(service.settings.get("seed", 0)) * 1000 + zlib.crc32(name.encode()) % 1000)
+        service.settings.seed * 1000 + zlib.crc32(name.encode()) % 1000)
+    replay = _replay(s["replay"], source)
+    shared = s["shared_sky"] and replay is None
     kwargs = dict(lever_arm_m=[float(v) for v in s["lever_arm_m"]], seed=seed,
                   outage_interval_s=s["outage_interval_s"], undulation_m=s["undulation_m"],
-                  replay=_replay(s["replay"], source), replay_speed=s["replay_speed"],
-                  replay_loop=s["replay_loop"], replay_retime=s["replay_retime"])
+                  replay=replay, replay_speed=s["replay_speed"],
+                  replay_loop=s["replay_loop"], replay_retime=s["replay_retime"],
+                  common_errors=car_sky(car, service.settings.seed) if shared else None)
     if s["cep_m"] > 0:
         kwargs["cep_m"] = s["cep_m"]
     return s, kwargs
@@ -68,18 +91,21 @@ def _common(name: str, table: dict, service) -> tuple[dict, dict]:
 
 def make_novatel_device(name: str, table: dict, car, service) -> SerialEndpoint:
     """Factory for the sim (kind = "novatel")."""
-    s, kwargs = _common(name, table, service)
-    twin = NovatelTwin(None if kwargs["replay"] else car.truth, **kwargs)
-    return SerialEndpoint(twin, service.settings.get("host", "127.0.0.1"), s["port"], name).start()
+    s, kwargs = _common(name, table, car, service)
+    if s["sbas_enable_value"] not in (0, 1):
+        raise ConfigError(f"[sim.{name}]: setting 'sbas_enable_value' must be 0 or 1")
+    twin = NovatelTwin(None if kwargs["replay"] else car.truth,
+                       sbas_enable_value=s["sbas_enable_value"], **kwargs)
+    return SerialEndpoint(twin, service.settings.host, s["port"], name).start()
 
 
 def make_nmea_device(name: str, table: dict, car, service) -> SerialEndpoint:
     """Factory for the sim (kind = "nmea")."""
-    s, kwargs = _common(name, table, service)
+    s, kwargs = _common(name, table, car, service)
     twin = NmeaTwin(None if kwargs["replay"] else car.truth, rate_hz=s["rate_hz"], **kwargs)
-    return SerialEndpoint(twin, service.settings.get("host", "127.0.0.1"), s["port"], name).start()
+    return SerialEndpoint(twin, service.settings.host, s["port"], name).start()
 
 
 __all__ = ["NovatelTwin", "NmeaTwin", "make_novatel_device", "make_nmea_device",
            "DriveReplay", "RecordedEpoch", "load_drive", "DRIVE_CSV", "GnssErrorModel",
-           "SkyModel", "Solution", "TruthSolver", "TWIN_SETTINGS"]
+           "CommonErrors", "car_sky", "SkyModel", "Solution", "TruthSolver", "TWIN_SETTINGS"]

@@ -19,7 +19,7 @@ from viena.services.gnss.driver.gpstime import gps_to_utc_ns
 from viena.common.twin.serial_port import ByteTwin
 
 from .clock import WEEK_MS, GpsClock
-from .errors import GnssErrorModel, SkyModel
+from .errors import CommonErrors, GnssErrorModel, SkyModel
 from .replay import DriveReplay, RecordedEpoch
 from .solution import Solution, TruthSolver
 
@@ -110,12 +110,13 @@ class NmeaTwin(ByteTwin):
                  outage_interval_s: float = 64.0, outages=(), undulation_m: float = 55.0,
                  output_delay_s: float = 0.03, talker: str = "GP",
                  replay: list[RecordedEpoch] | None = None, replay_speed: float = 1.0,
-                 replay_loop: bool = False, replay_retime: bool = True):
+                 replay_loop: bool = False, replay_retime: bool = True,
+                 common_errors: CommonErrors | None = None):
         if truth is None and replay is None:
             raise ValueError("an NmeaTwin needs truth or a recording to replay")
         rng = np.random.default_rng(seed)
         self.solver = None if truth is None else TruthSolver(
-            truth, lever_arm_m, errors=GnssErrorModel(rng, cep_m=cep_m),
+            truth, lever_arm_m, errors=GnssErrorModel(rng, cep_m=cep_m, common=common_errors),
             sky=SkyModel(rng, outage_interval_s=outage_interval_s, outages=outages),
             undulation_m=undulation_m, hold_limit_s=0.0)
         self.replay = (None if replay is None

@@ -10,8 +10,14 @@ It behaves as the receiver's binary interface on one port (COM1) does:
   period (at most 20 Hz), ONNEW/ONCHANGED at each new solution, ONNEXT and ONCE once;
 - logs BESTXYZ, BESTPOS and BESTVEL, from the simulated car's truth (TruthSolver) or from
   the real drive of 2016 at its recorded pace (``replay``), where every requested log
-  comes out on every recorded epoch (or on those matching a slower ONTIME period).
-Binary only: ASCII input is ignored, as is anything that is not a frame.
+  comes out on every recorded epoch (or on those matching a slower ONTIME period);
+- the polled log RXCONFIG (ONCE, binary or ASCII, §3.4.84): one log per setting it holds
+  (COM, DYNAMICS, SBASCONTROL, each LOG), each embedding that command with its CRC
+  inverted, counting down to 0; in ASCII the enumerations are labels, so SBASCONTROL reads
+  ENABLE or DISABLE as the receiver understood the command.
+SBASCONTROL's binary keyword: the OEM4 2.310 manual's table reads 0 as ENABLE, later
+firmware reads 1; ``sbas_enable_value`` says which firmware this twin runs.
+Commands are binary only: ASCII input is ignored, as is anything that is not a frame.
 
 A TCP connection cannot carry a serial break, and the driver sends one on every open, so
 a new connection does what the break does (COM §2.6.10): this port's non-held logs stop,
@@ -27,13 +33,14 @@ from typing import Callable
 import numpy as np
 
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns
+from viena.services.gnss.driver.novatel.ascii import ascii_line, rxconfig_text
 from viena.services.gnss.driver.novatel.commands import (
-    COMMANDS, BodyError, Com, DynamicsCommand, Log, Reset, Response, SaveConfig, SbasControl,
-    Unlog, Unlogall,
+    COMMANDS, BodyError, Com, Command, DynamicsCommand, Log, Reset, Response, SaveConfig,
+    SbasControl, Unlog, Unlogall, sbas_keyword_value,
 )
 from viena.services.gnss.driver.novatel.enums import (
-    COM_BAUDS, RESPONSE_TEXT, ComPort, Dynamics, MessageId, Port, PositionType, ResponseId,
-    SbasKeyword, SbasSystem, TimeStatus, Trigger,
+    COM_BAUDS, RESPONSE_TEXT, ComPort, Dynamics, MessageFormat, MessageId, Port, PositionType,
+    ResponseId, SbasKeyword, SbasSystem, SbasTestMode, TimeStatus, Trigger,
 )
 from viena.services.gnss.driver.novatel.framing import (
     BINARY_MESSAGE_TYPE, CRC_LENGTH, HEADER_LENGTH, MAX_BODY_LENGTH, SYNC, Header, crc32,
@@ -43,7 +50,7 @@ from viena.services.gnss.driver.novatel.logs import BestPos, BestVel, BestXyz
 from viena.common.twin.serial_port import ByteTwin
 
 from .clock import WEEK_MS, GpsClock
-from .errors import GnssErrorModel, SkyModel
+from .errors import CommonErrors, GnssErrorModel, SkyModel
 from .replay import EPOCH_MS, DriveReplay, RecordedEpoch
 from .solution import Solution, TruthSolver
 
@@ -87,12 +94,13 @@ class LogEntry:
 
 @dataclass
 class ReceiverConfig:
-    """What SAVECONFIG stores and RESET restores."""
+    """What SAVECONFIG stores and RESET restores. SBAS as the receiver understood it: the
+    keyword is its meaning (the OEM4 table's name), whatever number carried it."""
 
     logs: tuple = ()
     baud: int = FACTORY_BAUD
     dynamics: Dynamics = Dynamics.AIR
-    sbas: SbasControl = SbasControl(SbasKeyword.DISABLE, SbasSystem.AUTO)
+    sbas: SbasControl = SbasControl(SbasKeyword.DISABLE, SbasSystem.AUTO)   # "DISABLE AUTO 0 NONE"
 
 
 def bestxyz_of(s: Solution) -> BestXyz:
@@ -128,6 +136,12 @@ class NovatelTwin(ByteTwin):
 
         NovatelTwin(car.truth, lever_arm_m=(0.5, 1.2, 1.5), seed=3)
 
+    Two receivers on one car share one sky (satellite clock, orbit and atmosphere errors)::
+
+        sky = CommonErrors(np.random.default_rng(1))
+        NovatelTwin(car.truth, (-0.5, 1.0, 1.5), seed=3, common_errors=sky)
+        NovatelTwin(car.truth, (0.5, 1.0, 1.5), seed=4, common_errors=sky)
+
     Replaying the 2016 drive (``truth`` is then not needed)::
 
         NovatelTwin(replay=load_drive(), replay_loop=True)
@@ -137,7 +151,8 @@ class NovatelTwin(ByteTwin):
                  seed: int = 0, cep_m: float = 1.8, sbas_cep_m: float | None = None,
                  outage_interval_s: float = 64.0, outages=(), undulation_m: float = 55.0,
                  output_delay_s: float = 0.02, boot_s: float = 1.0,
-                 reset_cold_start_s: float = 5.0,
+                 reset_cold_start_s: float = 5.0, sbas_enable_value: int = SbasKeyword.ENABLE,
+                 common_errors: CommonErrors | None = None,
                  replay: list[RecordedEpoch] | None = None, replay_speed: float = 1.0,
                  replay_loop: bool = False, replay_retime: bool = True):
         if truth is None and replay is None:
@@ -145,8 +160,9 @@ class NovatelTwin(ByteTwin):
         rng = np.random.default_rng(seed)
         self.cep_m = cep_m
         self.sbas_cep_m = cep_m if sbas_cep_m is None else sbas_cep_m
+        self.sbas_enable_value = sbas_enable_value
         self.solver = None if truth is None else TruthSolver(
-            truth, lever_arm_m, errors=GnssErrorModel(rng, cep_m=cep_m),
+            truth, lever_arm_m, errors=GnssErrorModel(rng, cep_m=cep_m, common=common_errors),
             sky=SkyModel(rng, outage_interval_s=outage_interval_s, outages=outages),
             undulation_m=undulation_m)
         self.output_delay_s = output_delay_s
@@ -364,6 +380,8 @@ class NovatelTwin(ByteTwin):
 
     def _log(self, cmd: Log, now_s: float):
         self._check(2, self._known(cmd.port))
+        if cmd.message == MessageId.RXCONFIG:
+            return self._rxconfig(cmd, now_s)
         if cmd.message not in LOG_MAKERS:
             raise Rejected(ResponseId.LOG_DOES_NOT_EXIST)
         self._check(4, (cmd.message_type >> 5) & 0x3 == 0)       # the twin speaks binary
@@ -439,11 +457,12 @@ class NovatelTwin(ByteTwin):
         return None
 
     def _sbascontrol(self, cmd: SbasControl, now_s: float):
-        self._check(2, self._known(cmd.keyword))
+        self._check(2, int(cmd.keyword) in (0, 1))
         self._check(3, self._known(cmd.system))
         self._check(4, cmd.prn == 0 or 120 <= cmd.prn <= 138, ResponseId.PARAMETER_OUT_OF_RANGE)
         self._check(5, self._known(cmd.testmode))
-        self.sbas = cmd
+        enable = int(cmd.keyword) == self.sbas_enable_value        # as this firmware reads it
+        self.sbas = replace(cmd, keyword=SbasKeyword.ENABLE if enable else SbasKeyword.DISABLE)
         self._apply_sbas()
         return None
 
@@ -461,6 +480,59 @@ class NovatelTwin(ByteTwin):
     def _saveconfig(self, cmd: SaveConfig, now_s: float):
         self.saved = ReceiverConfig(tuple(self.logs.values()), self.baud, self.dynamics, self.sbas)
         return None
+
+    # -- RXCONFIG ----------------------------------------------------------------------
+    def _rxconfig(self, cmd: Log, now_s: float):
+        """LOG RXCONFIG ONCE: after the response, one RXCONFIG log per setting."""
+        fmt = (cmd.message_type >> 5) & 0x3
+        self._check(4, fmt in (MessageFormat.BINARY, MessageFormat.ASCII))
+        if cmd.trigger != Trigger.ONCE:
+            raise Rejected(ResponseId.TRIGGER_NOT_VALID, Trigger(cmd.trigger).name)
+        if cmd.port not in (Port.THISPORT, OWN_PORT):
+            return None
+
+        def output():
+            settings = self._settings()
+            gps_ms = self._gps_ms(now_s)
+            for k, (command, text) in enumerate(settings):
+                sequence = len(settings) - 1 - k
+                if fmt == MessageFormat.ASCII:
+                    self._out += ascii_line(rxconfig_text(command.name, text, sequence,
+                                                          **self._ascii_header(gps_ms)))
+                else:
+                    self._out += self._rxconfig_binary(command, sequence, gps_ms)
+        return output
+
+    def _settings(self) -> list[tuple[Command, str]]:
+        """What the receiver holds, as commands and as RXCONFIGA writes them (by label)."""
+        sb = self.sbas
+        keyword = sbas_keyword_value(SbasKeyword(sb.keyword), self.sbas_enable_value)
+        out = [(Com(ComPort.COM1, self.baud), f"COM1,{self.baud},N,8,1,N,OFF,ON"),
+               (DynamicsCommand(self.dynamics), Dynamics(self.dynamics).name),
+               (replace(sb, keyword=keyword),
+                f"{SbasKeyword(sb.keyword).name},{SbasSystem(sb.system).name},{sb.prn},"
+                f"{SbasTestMode(sb.testmode).name}")]
+        for e in self.logs.values():
+            out.append((Log(OWN_PORT, e.message, 0, 0, e.trigger, e.period_ms / 1000.0,
+                            e.offset_ms / 1000.0, int(e.hold)),
+                        f"COM1,{MessageId(e.message).name}B,{Trigger(e.trigger).name},"
+                        f"{e.period_ms / 1000.0:.6f},{e.offset_ms / 1000.0:.6f},"
+                        f"{'HOLD' if e.hold else 'NOHOLD'}"))
+        return out
+
+    def _ascii_header(self, gps_ms: int) -> dict:
+        h = self._header(MessageId.RXCONFIG, gps_ms)
+        return dict(port="COM1", idle_percent=h.idle_percent,
+                    time_status=TimeStatus(h.time_status).name, week=h.week,
+                    seconds=h.milliseconds / 1000.0, receiver_status=h.receiver_status,
+                    sw_version=h.sw_version)
+
+    def _rxconfig_binary(self, command: Command, sequence: int, gps_ms: int) -> bytes:
+        """Binary RXCONFIG: the embedded command's header and body, its CRC inverted."""
+        inner = command.frame(port_address=OWN_PORT, sequence=sequence)
+        crc = int.from_bytes(inner[-CRC_LENGTH:], "little") ^ 0xFFFFFFFF
+        body = inner[:-CRC_LENGTH] + crc.to_bytes(CRC_LENGTH, "little")
+        return encode_frame(self._header(MessageId.RXCONFIG, gps_ms, sequence=sequence), body)
 
     _HANDLERS = {Log: _log, Unlog: _unlog, Unlogall: _unlogall, Com: _com,
                  DynamicsCommand: _dynamics, SbasControl: _sbascontrol, Reset: _reset,

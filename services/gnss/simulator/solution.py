@@ -122,7 +122,7 @@ class TruthSolver:
         if self._t0_ms is None:
             self._t0_ms = gps_ms
         t_s = (gps_ms - self._t0_ms) / 1000.0
-        err_pos, err_vel = self.errors.step(t_s)
+        err_pos, err_vel = self.errors.step(t_s, gps_ms)
         sky = self.sky.at(t_s)
         if sky.outage or gps_ms < self.no_fix_until_ms:
             return self._no_fix(gps_ms, sky)

@@ -7,8 +7,20 @@ The CRC-8/MAXIM covers the whole 52-byte struct with the CRC byte zeroed. Axes a
 board's as printed (on the car: x right, y forward, z up). The firmware has no command
 interface: after reset it prints a few ASCII lines, then streams frames at about 82.5 Hz.
 
-`FrameDecoder` takes the byte stream in chunks of any size, skips the boot text (keeping
-its lines), checks every CRC, and after a bad frame hunts for the next AA BB.
+An 8-bit CRC passes one misaligned window in 256: after a frame cut short, the 52 bytes from
+its sync (the cut frame's start and the next frame's) pass by chance often enough to publish
+nonsense. So `FrameDecoder` accepts a frame only when three things hold:
+
+1. its CRC checks;
+2. its values are physically possible for the sensors (see LIMITS);
+3. the bytes that follow it start the next frame (AA BB), or the line falls silent right
+   after it (`silence()`, for the last frame of a burst).
+
+A cut frame's window ends inside the next frame, so what follows it is that frame's data,
+not a sync, and it is refused; the next frame's own sync is then found inside the refused
+window. Silence cannot confirm a window that holds a sync of its own (a cut frame and the
+start of the next), so it waits for more bytes instead. Refusals are counted by reason.
+The decoder also takes chunks of any size and skips the boot text (keeping its lines).
 """
 from __future__ import annotations
 
@@ -24,10 +36,17 @@ FRAME = struct.Struct("<2BB12fB")
 FRAME_SIZE = FRAME.size            # 52
 _PAYLOAD = struct.Struct("<B12f")  # id + floats, read in place from the stream buffer
 
-# What the firmware can possibly send (ADXL345 +-16 g, ITG-3200 +-2000 deg/s, HMC5843
-# int16 counts through a 3x3 EEPROM transform, angles). Beyond these a frame whose CRC
-# matched by chance (1 in 256 while hunting through garbage) is still rejected.
-_LIMITS = (64.0,) * 3 + (4000.0,) * 3 + (1.0e5,) * 3 + (720.0,) * 3
+#: What the board can physically send, per value (lowest, highest):
+#: - accel, g: the ADXL345's 13 bits (+-4096 LSB at +-16 g) at its lowest datasheet
+#:   sensitivity, 230 LSB/g (4.3 mg/LSB), through the EEPROM line: 17.8 g;
+#: - gyro, deg/s: the ITG-3200's int16 at 14.375 LSB per deg/s (2279.5), less the boot bias;
+#: - mag, counts: the HMC5843's int16 registers (12-bit readings, but a register read
+#:   mid-update spans all 16 bits: the car's recordings hold -19458) through the EEPROM
+#:   3x3 transform and offset;
+#: - euler, deg: yaw by either convention of the firmware's Madgwick (-180..180 or
+#:   0..360), pitch from an arcsine, roll from an arctangent.
+LIMITS = ((-18.0, 18.0),) * 3 + ((-2300.0, 2300.0),) * 3 + ((-5.0e4, 5.0e4),) * 3 + (
+    (-180.01, 360.01), (-90.01, 90.01), (-180.01, 180.01))
 
 #: Printable ASCII plus tab, CR: what the boot text is made of.
 _TEXT_BYTES = frozenset(range(0x20, 0x7F)) | {0x09, 0x0D}
@@ -49,10 +68,13 @@ class DecoderStats:
     """What the decoder has seen since it was made; the service reports these as health."""
 
     frames: int = 0
-    crc_errors: int = 0        # AA BB candidates whose CRC (or value range) did not check
+    crc_errors: int = 0        # AA BB candidates whose CRC did not check
+    out_of_range: int = 0      # CRC checked, but a value no sensor can send
+    unconfirmed: int = 0       # CRC and values fine, but what followed did not start a frame
     resyncs: int = 0           # times the stream was found again after losing it
     bytes_skipped: int = 0     # bytes that were neither a good frame nor a line of text
     text_lines: int = 0
+    by_silence: int = 0        # frames confirmed by the line falling silent after them
 
 
 def encode_frame(board_id: int, accel_g, gyro_dps, mag_counts, euler_deg) -> bytes:
@@ -70,8 +92,8 @@ def frame_crc_ok(data: bytes | bytearray, start: int = 0) -> bool:
 def _unpack(data: bytes | bytearray, start: int) -> Frame | None:
     """The frame at `start` (CRC already checked), or None if its values are impossible."""
     board_id, *v = _PAYLOAD.unpack_from(data, start + 2)
-    for x, limit in zip(v, _LIMITS):
-        if not -limit <= x <= limit:           # also false for nan
+    for x, (lo, hi) in zip(v, LIMITS):
+        if not lo <= x <= hi:                  # also false for nan
             return None
     return Frame(board_id, tuple(v[0:3]), tuple(v[3:6]), tuple(v[6:9]), tuple(v[9:12]))
 
@@ -91,13 +113,17 @@ def decode_frame(data: bytes) -> Frame:
     return frame
 
 
+_WAIT = object()        # a candidate that needs the bytes after it (or silence) to be judged
+
+
 class FrameDecoder:
     """Bytes in, (stream offset, Frame) out. Never raises on bad input: it counts it.
 
-    While locked, frames follow each other back to back and are checked in place; a
-    frame that fails drops the decoder into hunting, where it scans for AA BB, takes
-    complete lines of printable ASCII as text (the boot banner) and counts the rest as
-    skipped. The stream offset of each frame lets the host count lost frame slots.
+    `feed(data)` returns the frames its bytes confirm; `silence()` (the caller's: no byte
+    for a frame time) returns a complete frame that was waiting for the next one's start.
+    `waiting` says whether there is such a frame. A refused candidate is searched again
+    from its second byte, so a refusal costs no good frame behind it; the stream offset
+    of each frame lets the host count lost frame slots.
     """
 
     def __init__(self, text_lines_kept: int = 20):
@@ -105,71 +131,103 @@ class FrameDecoder:
         self.text = deque(maxlen=text_lines_kept)   # recent lines of text from the board
         self._buf = bytearray()
         self._base = 0             # stream offset of self._buf[0]
-        self._locked = False
         self._lost = False         # bytes were lost since the last good frame
         self._ever_locked = False  # a first lock is an acquisition, later ones are resyncs
+        self._waiting = False      # a complete candidate waits at the buffer's start
+        self._silence_refused = False   # ... and silence could not confirm it
 
     @property
-    def locked(self) -> bool:
-        return self._locked
+    def waiting(self) -> bool:
+        """A complete frame waits for the bytes after it; silence may confirm it."""
+        return self._waiting and not self._silence_refused
 
     def reset(self) -> None:
         """Forget buffered bytes and restart stream offsets (a new connection); the
         counters keep running."""
         self._buf.clear()
         self._base = 0
-        self._locked = self._lost = self._ever_locked = False
+        self._lost = self._ever_locked = self._waiting = self._silence_refused = False
 
     def feed(self, data: bytes | bytearray) -> list[tuple[int, Frame]]:
+        self._buf += data
+        if data:
+            self._silence_refused = False
+        return self._scan(silent=False)
+
+    def silence(self) -> list[tuple[int, Frame]]:
+        """The line has been quiet for a frame time: judge the waiting frame without the
+        bytes after it."""
+        return self._scan(silent=True)
+
+    def _scan(self, silent: bool) -> list[tuple[int, Frame]]:
         buf = self._buf
-        buf += data
         out: list[tuple[int, Frame]] = []
         n = len(buf)
         i = 0
-        stats = self.stats
+        self._waiting = False
         while True:
-            if self._locked:
-                if n - i < FRAME_SIZE:
+            if n - i < 2 or buf[i] != 0xAA or buf[i + 1] != 0xBB:
+                j = buf.find(SYNC, i)
+                if j < 0:
+                    # keep a trailing AA (half a sync) and an unfinished line of text
+                    keep = n - 1 if n > i and buf[-1] == 0xAA else n
+                    keep = self._partial_line_start(buf, i, keep)
+                    self._skip(buf, i, keep)
+                    i = keep
                     break
-                if buf[i] == 0xAA and buf[i + 1] == 0xBB and frame_crc_ok(buf, i):
-                    frame = _unpack(buf, i)
-                    if frame is not None:
-                        out.append((self._base + i, frame))
-                        stats.frames += 1
-                        i += FRAME_SIZE
-                        continue
-                self._locked = False       # hunting looks at the same bytes again
-                self._lost = True
-            j = buf.find(SYNC, i)
-            if j < 0:
-                # keep a trailing AA (half a sync) and an unfinished line of text
-                keep = n - 1 if n and buf[-1] == 0xAA else n
-                keep = self._partial_line_start(buf, i, keep)
-                self._skip(buf, i, keep)
-                i = keep
-                break
-            self._skip(buf, i, j)
-            i = j
+                self._skip(buf, i, j)
+                i = j
             if n - i < FRAME_SIZE:
                 break
-            frame = _unpack(buf, i) if frame_crc_ok(buf, i) else None
-            if frame is None:
-                stats.crc_errors += 1
-                stats.bytes_skipped += 1
+            verdict = self._judge(buf, i, n, silent)
+            if verdict is _WAIT:
+                self._waiting = True
+                break
+            if verdict is None:                  # refused: look again from the next byte
+                self.stats.bytes_skipped += 1
                 self._lost = True
                 i += 1
                 continue
             if self._lost and self._ever_locked:
-                stats.resyncs += 1
+                self.stats.resyncs += 1
             self._lost = False
-            self._locked = self._ever_locked = True
-            out.append((self._base + i, frame))
-            stats.frames += 1
+            self._ever_locked = True
+            out.append((self._base + i, verdict))
+            self.stats.frames += 1
             i += FRAME_SIZE
         if i:
             del buf[:i]
             self._base += i
         return out
+
+    def _judge(self, buf: bytearray, i: int, n: int, silent: bool):
+        """The frame whose sync is at i, None if it is refused (counted), or _WAIT."""
+        stats = self.stats
+        if not frame_crc_ok(buf, i):
+            stats.crc_errors += 1
+            return None
+        frame = _unpack(buf, i)
+        if frame is None:
+            stats.out_of_range += 1
+            return None
+        after = i + FRAME_SIZE
+        if n - after >= 2:
+            if buf[after] == 0xAA and buf[after + 1] == 0xBB:
+                return frame
+            stats.unconfirmed += 1
+            return None
+        if n - after == 1 and buf[after] != 0xAA:
+            stats.unconfirmed += 1
+            return None
+        if not silent:
+            return _WAIT
+        if buf.find(SYNC, i + 1, after) >= 0:
+            # a frame may start inside this one: it may be a cut frame and the start of
+            # the next, so only the bytes to come can tell
+            self._silence_refused = True
+            return _WAIT
+        stats.by_silence += 1
+        return frame
 
     # -- text and garbage between frames -----------------------------------------------------
     def _skip(self, buf: bytearray, start: int, end: int) -> None:

@@ -14,11 +14,14 @@ class Razor(SerialImu):
 
     The firmware has no commands; opening the port resets the board (DTR), which prints
     its boot text, averages the gyro for a few seconds (keep it still), then streams.
+    A frame is handed on once the next one's start (or a frame time of silence) confirms
+    it: see frames.py.
     """
 
     firmware = "viena"
     BAUDRATE = 500_000
     RATE_HZ = 82.5
+    FRAME_BYTES = FRAME_SIZE
 
     def __init__(self, url: str, baudrate: int | None = None, **kwargs):
         super().__init__(url, baudrate, **kwargs)
@@ -36,5 +39,15 @@ class Razor(SerialImu):
     def _start_stream(self) -> None:
         self.decoder.reset()
 
-    def _decode(self, data: bytes) -> list[tuple[float, int, Frame]]:
-        return [(offset / FRAME_SIZE, offset, frame) for offset, frame in self.decoder.feed(data)]
+    def _decode(self, data: bytes) -> list[tuple[float, int, Frame, int]]:
+        return _slots(self.decoder.feed(data))
+
+    def _awaiting_silence(self) -> bool:
+        return self.decoder.waiting
+
+    def _decode_silence(self) -> list[tuple[float, int, Frame, int]]:
+        return _slots(self.decoder.silence())
+
+
+def _slots(frames: list[tuple[int, Frame]]) -> list[tuple[float, int, Frame, int]]:
+    return [(offset / FRAME_SIZE, offset, frame, offset + FRAME_SIZE) for offset, frame in frames]

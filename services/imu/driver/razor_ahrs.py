@@ -10,6 +10,16 @@ The firmware's own axes are X forward (towards the connector edge), Y right, Z d
 accelerometer output is the gravity vector (the negated specific force) with 1 g = 256,
 and its gyro output is in ITG-3200 counts. The driver turns all of it back into the
 board's printed axes and the units the VIENA firmware uses, so one `Frame` serves both.
+
+Binary frames carry neither sync nor checksum: a lost or extra byte shifts every frame
+after it, and when the shift is a whole number of floats the shifted frames hold real
+values in the wrong fields and look possible. The firmware writes each frame in one go and
+pauses until the next, so the line's pause is the boundary the bytes lack: binary frames
+are held until the line falls silent for a frame time, and accepted only if the pause
+falls on a frame boundary; part of a frame at a pause, or an impossible frame, drops the
+synchronisation until a new token. Over a link that hands bytes over without pauses,
+frames beyond MAX_HELD are let go while the frames after them are possible, which a
+shift by whole floats passes: there, the text output is the safer choice.
 """
 from __future__ import annotations
 
@@ -36,7 +46,13 @@ GYRO_LSB_PER_DPS = 14.375        # ITG-3200 sensitivity
 #: magnetometer units per HMC5843 count with the firmware's default limits (MAGN_*_MIN/MAX
 #: = -600/600 give MAGN_*_SCALE = 100 / 600)
 DEFAULT_MAGN_SCALE = 100.0 / 600.0
-_LIMITS = (64 * ACCEL_PER_G,) * 3 + (1.0e5,) * 3 + (4000 * GYRO_LSB_PER_DPS,) * 3
+#: binary frames held while waiting for the line's pause (160 ms at 50 Hz)
+MAX_HELD = 8
+#: What the board can physically send, in the firmware's units (see frames.LIMITS): the
+#: ADXL345 to 18 g, the calibrated magnetometer (the HMC5843's int16 registers, a glitch
+#: included, times MAGN_SCALE 100/600, with room for another calibration), the ITG-3200's
+#: int16 counts less the boot bias.
+_LIMITS = (18 * ACCEL_PER_G,) * 3 + (1.0e4,) * 3 + (2300 * GYRO_LSB_PER_DPS,) * 3
 
 
 def sync_request(token: bytes) -> bytes:
@@ -70,6 +86,7 @@ def from_board(accel_g, gyro_dps, mag) -> tuple[tuple, tuple, tuple]:
 class AhrsStats:
     frames: int = 0
     bad_frames: int = 0        # binary frames with impossible values, text lines that do not parse
+    unconfirmed: int = 0       # possible binary frames refused: the frame after them was not
     resyncs: int = 0           # synch tokens asked for after the first
     bytes_skipped: int = 0
 
@@ -107,9 +124,28 @@ class AhrsDecoder:
         self._token = token
         self._synced = False
 
+    @property
+    def waiting(self) -> bool:
+        """Binary bytes wait for more; silence will judge them."""
+        return self.binary and self._synced and len(self._buf) > 0
+
     def feed(self, data: bytes) -> list[tuple[float, int, Frame]]:
         self._buf += data
         return self._feed_binary() if self.binary else self._feed_text()
+
+    def silence(self) -> list[tuple[float, int, Frame]]:
+        """The line has been quiet for a frame time. The firmware writes each frame in one
+        go and pauses only between frames, so whole frames up to the pause ended there and
+        are accepted, and part of a frame means bytes were lost or added: the frames are off
+        their boundaries, and the synchronisation is dropped."""
+        if not self.waiting:
+            return []
+        if len(self._buf) % SENSORS.size == 0:
+            return self._feed_binary(silent=True)
+        self.stats.unconfirmed += len(self._buf) // SENSORS.size
+        self.stats.bad_frames += 1
+        self._lose_sync()
+        return []
 
     def _consume(self, n: int) -> None:
         del self._buf[:n]
@@ -132,25 +168,36 @@ class AhrsDecoder:
         self._synced = True
         return True
 
-    def _feed_binary(self) -> list[tuple[float, int, Frame]]:
-        out = []
+    def _feed_binary(self, silent: bool = False) -> list[tuple[float, int, Frame]]:
+        """Whole frames are held until the line pauses after them (`silent`); more than
+        MAX_HELD of them, on a link that hands bytes over without pauses, are let go while
+        the frames after them are possible too. An impossible frame drops the
+        synchronisation, with the frames held before it."""
         if not self._synced and not self._find_token():
-            return out
+            return []
         size = SENSORS.size
-        while len(self._buf) >= size:
+        whole = len(self._buf) // size
+        for k in range(whole):
+            if not _possible(SENSORS.unpack_from(self._buf, k * size)):
+                self.stats.unconfirmed += k
+                self.stats.bad_frames += 1
+                self._lose_sync()
+                return []
+        out = []
+        for _ in range(whole if silent else max(0, whole - MAX_HELD)):
             values = SENSORS.unpack_from(self._buf, 0)
             offset = self._base
-            if not all(-lim <= v <= lim for v, lim in zip(values, _LIMITS)):
-                self.stats.bad_frames += 1
-                self._synced = False
-                self._token = None
-                self.stats.bytes_skipped += len(self._buf)
-                self._consume(len(self._buf))
-                break
             self._consume(size)
             self.stats.frames += 1
             out.append((offset / size, offset, to_board(values[0:3], values[3:6], values[6:9])))
         return out
+
+    def _lose_sync(self) -> None:
+        """Binary frames carry no marks: drop everything until a new token is asked for."""
+        self._synced = False
+        self._token = None
+        self.stats.bytes_skipped += len(self._buf)
+        self._consume(len(self._buf))
 
     def _feed_text(self) -> list[tuple[float, int, Frame]]:
         out = []
@@ -190,6 +237,10 @@ class AhrsDecoder:
         return out
 
 
+def _possible(values) -> bool:
+    return all(-lim <= v <= lim for v, lim in zip(values, _LIMITS))       # False for nan
+
+
 class SyncError(serial.SerialException):
     """The board never answered a synch request: wrong firmware, baud rate or port."""
 
@@ -204,6 +255,7 @@ class RazorAhrs(SerialImu):
     firmware = "razor-ahrs"
     BAUDRATE = BAUDRATE
     RATE_HZ = RATE_HZ
+    FRAME_BYTES = SENSORS.size
 
     def __init__(self, url: str, baudrate: int | None = None, *, output: str = "binary",
                  sync_timeout: float = 1.5, sync_attempts: int = 3, **kwargs):
@@ -252,5 +304,18 @@ class RazorAhrs(SerialImu):
             self.synchronise()
         return super().read(timeout)
 
-    def _decode(self, data: bytes) -> list[tuple[float, int, Frame]]:
-        return self.decoder.feed(data)
+    def _decode(self, data: bytes) -> list[tuple[float, int, Frame, int]]:
+        return self._ends(self.decoder.feed(data))
+
+    def _awaiting_silence(self) -> bool:
+        return self.decoder.waiting
+
+    def _decode_silence(self) -> list[tuple[float, int, Frame, int]]:
+        return self._ends(self.decoder.silence())
+
+    def _ends(self, frames) -> list[tuple[float, int, Frame, int]]:
+        """Where each frame ends: a binary frame is 36 bytes; a text frame ended in the
+        chunk just read (it needs no look-ahead)."""
+        if self.decoder.binary:
+            return [(slot, offset, frame, offset + SENSORS.size) for slot, offset, frame in frames]
+        return [(slot, offset, frame, self._received) for slot, offset, frame in frames]

@@ -1,5 +1,11 @@
 """What both Razor drivers share: open a link (any pyserial URL), decode its chunks, stamp
-and number frames. Reading is pulled: `read()` waits on the link in the caller's thread."""
+and number frames. Reading is pulled: `read()` waits on the link in the caller's thread.
+
+A decoder may hold a complete frame until the bytes after it confirm it (the next frame's
+start); when none come, the line falling silent for a frame time confirms it instead, so
+`read()` waits for that silence at most (`silence_s`, one frame's time on the wire) before
+it hands the frame on.
+"""
 from __future__ import annotations
 
 import time
@@ -15,26 +21,33 @@ class Reading(NamedTuple):
     """One frame as the host received it."""
 
     t_ns: int          # estimated acquisition time, ns UTC (see timing.CadenceClock)
-    t_host_ns: int     # when the host read the chunk holding the frame, ns UTC
+    t_host_ns: int     # when the host read the chunk holding the frame's last byte, ns UTC
     seq: int           # host frame counter: jumps by the number of frame slots lost
     frame: Frame
 
 
 class SerialImu:
-    """Base of the drivers: subclasses say how bytes become frames (`_decode`)."""
+    """Base of the drivers: subclasses say how bytes become frames (`_decode`, and
+    `_decode_silence` when their decoder waits for what follows a frame)."""
 
     firmware = ""
     BAUDRATE = 0
     RATE_HZ = 0.0
+    FRAME_BYTES = 0             # one frame on the wire: what "silent for a frame time" means
 
     def __init__(self, url: str, baudrate: int | None = None, *, timeout: float = 0.1,
-                 rate_hz: float | None = None):
+                 rate_hz: float | None = None, silence_s: float | None = None):
         self.url = url
         self.timeout = timeout
         self.link = SerialLink(url, baudrate or self.BAUDRATE)
+        self.silence_s = (self.FRAME_BYTES * self.link.byte_time_s if silence_s is None
+                          else silence_s)
         self.clock = CadenceClock(1.0 / (rate_hz or self.RATE_HZ))
         self._pending: deque[Reading] = deque()
+        #: recent chunks as (stream offset just after, t_host_ns), to time frames confirmed late
+        self._chunks: deque[tuple[int, int]] = deque(maxlen=256)
         self._received = 0          # stream offset: bytes received since open
+        self._last_bytes_s = 0.0    # monotonic time of the last chunk
         self._last_slot: float | None = None
         self._seq = -1
 
@@ -43,6 +56,7 @@ class SerialImu:
         """Open the port and get the stream going; raises serial.SerialException (OSError)."""
         self.link.open()
         self._received = 0
+        self._chunks.clear()
         self._last_slot = None
         self._pending.clear()
         self.clock.reset()
@@ -72,16 +86,23 @@ class SerialImu:
     def read(self, timeout: float | None = None) -> Reading | None:
         """The next frame, waiting up to `timeout` s (default: the driver's `timeout`);
         None if none came. Raises serial.SerialException when the device is gone."""
-        if not self._pending:
-            wait = self.timeout if timeout is None else timeout
-            deadline = time.monotonic() + wait
-            while not self._pending:
-                left_s = deadline - time.monotonic()
-                data, t_host = self.link.read(max(0.0, min(left_s, self.timeout)))
-                if data:
-                    self._ingest(data, t_host)
-                elif left_s <= 0:
-                    return None
+        wait = self.timeout if timeout is None else timeout
+        deadline = time.monotonic() + wait
+        while not self._pending:
+            now = time.monotonic()
+            poll_s = self.timeout
+            if self._awaiting_silence():
+                quiet_s = now - self._last_bytes_s
+                if quiet_s >= self.silence_s:
+                    self._stamp(self._decode_silence())
+                    continue
+                poll_s = self.silence_s - quiet_s
+            left_s = deadline - now
+            if left_s <= 0:
+                return None
+            data, t_host = self.link.read(min(left_s, poll_s))
+            if data:
+                self._ingest(data, t_host)
         return self._pending.popleft()
 
     def __iter__(self) -> Iterator[Reading]:
@@ -93,19 +114,39 @@ class SerialImu:
 
     def _ingest(self, data: bytes, t_host_ns: int) -> None:
         self._received += len(data)
+        self._last_bytes_s = time.monotonic()
+        self._chunks.append((self._received, t_host_ns))
+        self._stamp(self._decode(data))
+
+    def _stamp(self, decoded: list[tuple[float, int, Frame, int]]) -> None:
+        """Number and time the frames: each frame's first byte arrived one frame's line time
+        before its last, which came in a chunk read at a known host time."""
         byte_ns = self.link.byte_time_s * 1e9
-        for slot, offset, frame in self._decode(data):
+        chunks = self._chunks
+        for slot, offset, frame, end in decoded:
+            while len(chunks) > 1 and chunks[0][0] < end:
+                chunks.popleft()                    # frames come in order: done with it
+            chunk_end, t_host_ns = chunks[0]
             step = 1 if self._last_slot is None else max(1, round(slot - self._last_slot))
             self._last_slot = slot
             self._seq += step
-            arrival = t_host_ns - int((self._received - offset) * byte_ns)
+            arrival = t_host_ns - int((chunk_end - offset) * byte_ns)
             self._pending.append(Reading(self.clock.stamp(arrival, step), t_host_ns, self._seq, frame))
 
     # -- for subclasses ------------------------------------------------------------------
     def _start_stream(self) -> None:
         """Whatever the firmware needs after the port opens."""
 
-    def _decode(self, data: bytes) -> list[tuple[float, int, Frame]]:
-        """(frame slot position, stream offset of the frame's first byte, frame) for each
-        frame completed by `data`; the slot position counts frame periods since open."""
+    def _decode(self, data: bytes) -> list[tuple[float, int, Frame, int]]:
+        """(frame slot position, stream offset of the frame's first byte, frame, stream
+        offset just after its last byte) for each frame `data` completes and confirms; the
+        slot position counts frame periods since open."""
         raise NotImplementedError
+
+    def _awaiting_silence(self) -> bool:
+        """Whether the decoder holds a complete frame that silence would confirm."""
+        return False
+
+    def _decode_silence(self) -> list[tuple[float, int, Frame, int]]:
+        """The frames the line's silence confirms (as `_decode`)."""
+        return []

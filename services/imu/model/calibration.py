@@ -24,8 +24,10 @@ import numpy as np
 
 from viena.common.errors import ConfigError
 from viena.services.imu.driver.razor_ahrs import ACCEL_PER_G, DEFAULT_MAGN_SCALE
+from viena.services.imu.model.mount import Mount
 from viena.services.imu.model.fitting import AccelFit, GyroBiasFit, MagFit, ellipse_c_inv
 
+MAX_TIME_OFFSET_S = 5.0
 STANDARD_GRAVITY = 9.80665                     # m/s^2 per g
 #: HMC5843 at the gain its i2cdevlib driver sets (1.0 Ga range): 1300 counts per gauss
 HMC5843_TESLA_PER_COUNT = 1e-4 / 1300
@@ -59,6 +61,10 @@ class ImuCalibration:
     mag_c_inv: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
     tesla_per_mag_unit: float = HMC5843_TESLA_PER_COUNT
     mag_method: str = "seed"
+    #: board to body rotation (model/mount.py): published samples are in the body frame
+    mount_zyx_deg: tuple = (0.0, 0.0, 0.0)
+    #: added to the unit's timestamps: t_true = t_stamped + time_offset_s (model/time_offset.py)
+    time_offset_s: float = 0.0
     source: str = field(default="seed", compare=False)    # "seed", or the file it came from
     updated: str = field(default="", compare=False)
     info: dict = field(default_factory=dict, compare=False)   # fit reports, kept in the file
@@ -82,6 +88,22 @@ class ImuCalibration:
         return dataclasses.replace(self, mag_offset=_vec(fit.offset), mag_c_inv=_mat(fit.c_inv),
                                    mag_method=fit.method, info={**self.info, "mag": info})
 
+    def with_mount(self, mount: Mount, report: dict) -> "ImuCalibration":
+        return dataclasses.replace(self, mount_zyx_deg=tuple(mount.zyx_deg),
+                                   info={**self.info, "mount": report})
+
+    def with_time_offset(self, offset_s: float, report: dict) -> "ImuCalibration":
+        return dataclasses.replace(self, time_offset_s=float(offset_s),
+                                   info={**self.info, "timing": report})
+
+    @property
+    def mount(self) -> Mount:
+        return Mount(tuple(self.mount_zyx_deg))
+
+    def board_frame(self) -> "ImuCalibration":
+        """The same calibration without the mount: values in the board's own axes."""
+        return dataclasses.replace(self, mount_zyx_deg=(0.0, 0.0, 0.0))
+
     # -- frames to LSB and back (what the accelerometer fit works on) ---------------------------
     def accel_lsb(self, accel_g: np.ndarray) -> np.ndarray:
         """Undo the firmware's EEPROM calibration: frame g -> chip LSB."""
@@ -102,6 +124,10 @@ class ImuCalibration:
             raise ConfigError(f"{where}: mag c_inv must be an invertible 3x3 matrix")
         if not (math.isfinite(self.tesla_per_mag_unit) and self.tesla_per_mag_unit > 0):
             raise ConfigError(f"{where}: mag tesla_per_unit must be positive")
+        if len(self.mount_zyx_deg) != 3 or not all(math.isfinite(a) and abs(a) <= 360 for a in self.mount_zyx_deg):
+            raise ConfigError(f"{where}: mount zyx_deg must be three angles in degrees")
+        if not (math.isfinite(self.time_offset_s) and abs(self.time_offset_s) <= MAX_TIME_OFFSET_S):
+            raise ConfigError(f"{where}: timing offset_s must be within +-{MAX_TIME_OFFSET_S} s")
         return self
 
 
@@ -131,36 +157,47 @@ class SampleCalibrator:
         g = STANDARD_GRAVITY
         eg, eo = cal.eeprom_gain_lsb_per_g, cal.eeprom_offset_lsb
         hg, ho = cal.accel_gain_lsb_per_g, cal.accel_offset_lsb
-        self._a_scale = [g * eg[i] / hg[i] for i in range(3)]
-        self._a_bias = [g * (eo[i] - ho[i]) / hg[i] for i in range(3)]
-        k = math.pi / 180.0
-        self._w_bias = [k * b for b in cal.gyro_bias_dps]
+        rot = cal.mount.matrix
+        # each sensor: body = R (scale * board + bias) = M board + c, with the mount R folded in
+        a_scale = np.diag([g * eg[i] / hg[i] for i in range(3)])
+        a_bias = np.array([g * (eo[i] - ho[i]) / hg[i] for i in range(3)])
+        self._a_np, self._a_bias_np = rot @ a_scale, rot @ a_bias
+        self._w_np = rot * (math.pi / 180.0)
+        self._w_bias_np = -rot @ np.radians(np.array(cal.gyro_bias_dps, float))
         m = np.array(cal.mag_c_inv, float) * cal.tesla_per_mag_unit
-        self._m = m.tolist()
-        self._m_bias = (-m @ np.array(cal.mag_offset, float)).tolist()
-        self._m_np, self._m_bias_np = m, -m @ np.array(cal.mag_offset, float)
+        self._m_np, self._m_bias_np = rot @ m, -rot @ m @ np.array(cal.mag_offset, float)
+        self._a, self._a_bias = self._a_np.tolist(), self._a_bias_np.tolist()
+        self._w, self._w_bias = self._w_np.tolist(), self._w_bias_np.tolist()
+        self._m, self._m_bias = self._m_np.tolist(), self._m_bias_np.tolist()
+        self.time_offset_ns = int(round(cal.time_offset_s * 1e9))
 
-    def accel(self, a) -> list[float]:
-        s, b = self._a_scale, self._a_bias
-        return [s[0] * a[0] + b[0], s[1] * a[1] + b[1], s[2] * a[2] + b[2]]
-
-    def gyro(self, w) -> list[float]:
-        k, b = math.pi / 180.0, self._w_bias
-        return [k * w[0] - b[0], k * w[1] - b[1], k * w[2] - b[2]]
-
-    def mag(self, h) -> list[float]:
-        (m0, m1, m2), b = self._m, self._m_bias
-        x, y, z = h
+    @staticmethod
+    def _affine(m, b, v) -> list[float]:
+        """m v + b for 3-vectors, in plain floats (a frame costs microseconds)."""
+        (m0, m1, m2), x, y, z = m, v[0], v[1], v[2]
         return [m0[0] * x + m0[1] * y + m0[2] * z + b[0],
                 m1[0] * x + m1[1] * y + m1[2] * z + b[1],
                 m2[0] * x + m2[1] * y + m2[2] * z + b[2]]
 
+    def accel(self, a) -> list[float]:
+        return self._affine(self._a, self._a_bias, a)
+
+    def gyro(self, w) -> list[float]:
+        return self._affine(self._w, self._w_bias, w)
+
+    def mag(self, h) -> list[float]:
+        return self._affine(self._m, self._m_bias, h)
+
+    def time_ns(self, t_stamped_ns: int) -> int:
+        """The acquisition time on the reference clock (the unit's time offset applied)."""
+        return t_stamped_ns + self.time_offset_ns
+
     # vectorised, for recordings
     def accel_array(self, a: np.ndarray) -> np.ndarray:
-        return np.asarray(a, float) * self._a_scale + self._a_bias
+        return np.asarray(a, float) @ self._a_np.T + self._a_bias_np
 
     def gyro_array(self, w: np.ndarray) -> np.ndarray:
-        return np.radians(np.asarray(w, float)) - self._w_bias
+        return np.asarray(w, float) @ self._w_np.T + self._w_bias_np
 
     def mag_array(self, h: np.ndarray) -> np.ndarray:
         return np.asarray(h, float) @ self._m_np.T + self._m_bias_np
@@ -178,6 +215,8 @@ def to_table(cal: ImuCalibration) -> dict:
         "gyro": {"bias_dps": list(cal.gyro_bias_dps)},
         "mag": {"method": cal.mag_method, "offset": list(cal.mag_offset),
                 "c_inv": [list(r) for r in cal.mag_c_inv], "tesla_per_unit": cal.tesla_per_mag_unit},
+        "mount": {"zyx_deg": list(cal.mount_zyx_deg)},
+        "timing": {"offset_s": cal.time_offset_s},
     }
     if cal.info:
         table["info"] = cal.info
@@ -190,6 +229,7 @@ def from_table(table: dict, where: str, source: str) -> ImuCalibration:
         firmware = table.get("firmware", "viena")
         base = seed_calibration(firmware) if firmware in FIRMWARES else ImuCalibration(firmware)
         accel, gyro, mag = table.get("accel", {}), table.get("gyro", {}), table.get("mag", {})
+        mount, timing = table.get("mount", {}), table.get("timing", {})
         cal = ImuCalibration(
             firmware=firmware,
             accel_gain_lsb_per_g=_vec(accel.get("gain_lsb_per_g", base.accel_gain_lsb_per_g)),
@@ -201,6 +241,8 @@ def from_table(table: dict, where: str, source: str) -> ImuCalibration:
             mag_c_inv=_mat(mag.get("c_inv", base.mag_c_inv)),
             tesla_per_mag_unit=float(mag.get("tesla_per_unit", base.tesla_per_mag_unit)),
             mag_method=str(mag.get("method", base.mag_method)),
+            mount_zyx_deg=_vec(mount.get("zyx_deg", base.mount_zyx_deg)),
+            time_offset_s=float(timing.get("offset_s", base.time_offset_s)),
             source=source, updated=str(table.get("updated", "")),
             info=dict(table.get("info", {})))
     except (TypeError, ValueError, AttributeError) as exc:

@@ -5,6 +5,10 @@ firmware sent, unchanged, so the unit can be re-calibrated from any recording.
 """
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
+from viena.common.display import fmt_num, fmt_vec, norm
 from viena.common.schema import F, Schema
 from viena.services.imu.model.calibration import SampleCalibrator
 from viena.services.imu.driver import Reading
@@ -28,6 +32,40 @@ SAMPLE = Schema("viena.imu.sample/1", {
 })
 
 
+class ImuSample(NamedTuple):
+    """An IMU sample as a consumer reads it (the estimator): the fields the README's
+    "Estimator" section lists, which any source may publish, checked by SAMPLE's own
+    checks. Made by `read_sample`. Vectors are lists of floats (the sample's own when
+    they already were, not copied): the estimator reads them once per sample, in scalar code."""
+
+    t: int
+    unit: str
+    accel_mps2: list[float]
+    gyro_radps: list[float]
+    mag_T: list[float] | None
+
+
+#: the fields an ImuSample is read from; a source with one unit may leave out `unit`
+_SAMPLE_FIELDS = SAMPLE.reader(*ImuSample._fields, defaults={"unit": "imu"})
+
+
+def read_sample(sample) -> ImuSample:
+    """The ImuSample in a decoded sample from any source; a FieldError (a SampleError)
+    names the field that is missing or wrong."""
+    return ImuSample._make(_SAMPLE_FIELDS(sample))
+
+
+def monitor_view(sample: dict) -> dict[str, str]:
+    """How the monitor shows an IMU sample (any map: what came on a sample key)."""
+    mag_T = norm(sample.get("mag_T"), 3)
+    return {
+        "accel m/s²": fmt_vec(sample.get("accel_mps2")),
+        "gyro °/s": fmt_vec(sample.get("gyro_radps"), 1, 180 / math.pi),
+        "|mag| µT": "-" if mag_T is None else f"{mag_T * 1e6:.1f}",
+        "seq": fmt_num(sample.get("seq")),
+    }
+
+
 class SampleBuilder:
     """Reading -> sample dict, for one unit."""
 
@@ -42,7 +80,7 @@ class SampleBuilder:
         cal = self.calibrator
         mag = cal.mag(f.mag_counts)
         return {
-            "t": reading.t_ns,
+            "t": cal.time_ns(reading.t_ns),
             "seq": reading.seq,
             "unit": self.unit,
             "firmware": self.firmware,

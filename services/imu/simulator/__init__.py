@@ -35,6 +35,8 @@ TWIN_SETTINGS = {
     "source": "razor",         # razor | razor-ahrs | replay:<parked name or CSV path>
     "boot_s": -1.0,            # -1: the twin's own (4 s of gyro averaging after reset)
     "seed": 0,
+    "mount_zyx_deg": [0.0, 0.0, 0.0],   # how the board sits in the car (model/mount.py)
+    "delay_s": 0.0,            # frames leave late by this much: the service stamps them late
 }
 
 
@@ -43,13 +45,17 @@ def make_razor_device(name: str, table: dict, car, service) -> SerialEndpoint:
     source = f"{getattr(service.args, 'config', None)} [sim.{name}]"
     s = merge_settings(TWIN_SETTINGS, table, source)
     kwargs = {"seed": s["seed"]}
+    if s["delay_s"]:
+        kwargs["delay_s"] = s["delay_s"]
+    if any(s["mount_zyx_deg"]):
+        kwargs["board"] = RazorBoard(mount_zyx_deg=tuple(s["mount_zyx_deg"]))
     if s["boot_s"] >= 0:
         kwargs["boot_s"] = s["boot_s"]
     try:
         twin = make_twin(s["source"], car.truth, **kwargs)
     except (OSError, ValueError) as exc:
         raise ConfigError(f"{source}: {exc}") from None
-    return SerialEndpoint(twin, service.settings.get("host", "127.0.0.1"), s["port"], name).start()
+    return SerialEndpoint(twin, service.settings.host, s["port"], name).start()
 
 
 __all__ = ["make_razor_device", "TWIN_SETTINGS", "RazorBoard", "Measurement", "LISBON_FIELD_ENU_NT", "RazorTwin", "RazorReplayTwin",

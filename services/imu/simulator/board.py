@@ -22,6 +22,7 @@ from viena.services.imu.model.calibration import (HMC5843_TESLA_PER_COUNT, STAND
                                             TABLE_5_3_GAIN_LSB_PER_G, TABLE_5_3_OFFSET_LSB,
                                             seed_calibration)
 from viena.services.imu.driver.razor_ahrs import GYRO_LSB_PER_DPS
+from viena.services.imu.model.mount import Mount
 
 LISBON_FIELD_ENU_NT = (-1121.5, 26479.8, -34884.7)
 
@@ -59,23 +60,27 @@ class RazorBoard:
     mag_noise_counts: tuple = (3.4, 3.3, 5.0)
     tesla_per_count: float = HMC5843_TESLA_PER_COUNT
     field_enu_nT: tuple = LISBON_FIELD_ENU_NT
+    #: how the board sits in the car (model/mount.py): board = R^T body
+    mount_zyx_deg: tuple = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
         for name in ("accel_gain_lsb_per_g", "accel_offset_lsb", "eeprom_gain_lsb_per_g",
                      "eeprom_offset_lsb", "accel_noise_lsb", "gyro_bias_dps", "gyro_noise_dps",
                      "mag_offset_counts", "mag_c", "mag_noise_counts"):
             object.__setattr__(self, "_" + name, np.array(getattr(self, name), float))
+        object.__setattr__(self, "_to_board", Mount(tuple(self.mount_zyx_deg)).matrix.T)
 
     def measure(self, truth, rng: np.random.Generator) -> Measurement:
-        f_g = np.asarray(truth.specific_force_body_mps2, float) / STANDARD_GRAVITY
+        to_board = self._to_board
+        f_g = to_board @ np.asarray(truth.specific_force_body_mps2, float) / STANDARD_GRAVITY
         lsb = np.round(self._accel_gain_lsb_per_g * f_g + self._accel_offset_lsb
                        + self._accel_noise_lsb * rng.standard_normal(3))
         lsb = np.clip(lsb, -4096, 4095)                # 13 bits at +-16 g, full resolution
         accel_g = (lsb - self._eeprom_offset_lsb) / self._eeprom_gain_lsb_per_g
-        w = (np.degrees(np.asarray(truth.gyro_body_radps, float)) + self._gyro_bias_dps
+        w = (np.degrees(to_board @ np.asarray(truth.gyro_body_radps, float)) + self._gyro_bias_dps
              + self._gyro_noise_dps * rng.standard_normal(3))
         w = np.round(w * GYRO_LSB_PER_DPS) / GYRO_LSB_PER_DPS
-        h = np.asarray(truth.mag_body_T(self.field_enu_nT), float) / self.tesla_per_count
+        h = to_board @ np.asarray(truth.mag_body_T(self.field_enu_nT), float) / self.tesla_per_count
         m = np.round(self._mag_c @ h + self._mag_offset_counts
                      + self._mag_noise_counts * rng.standard_normal(3))
         m = np.clip(m, -2048, 2047)

@@ -28,19 +28,23 @@ class RazorTwin(ByteTwin):
     truth      callable returning the latest Truth (`car.truth`)
     board      the sensor model (gains, biases, noise, iron); seed figures by default
     boot_s     reset to first frame: the firmware averages the gyro for about 4 s
+    delay_s    frames leave this long after they were measured (a slow USB adapter or a
+               buffering firmware): the host stamps them late
     line_errors  probability that a frame has one byte damaged on the line (tests)
     keep_sent  remember the last frames sent, as (frame bytes, intact) (tests)
     """
 
     def __init__(self, truth: Callable | None, board: RazorBoard | None = None, *,
                  rate_hz: float = RATE_HZ, boot_s: float = 4.0, seed: int = 0,
-                 line_errors: float = 0.0, keep_sent: int = 0):
+                 delay_s: float = 0.0, line_errors: float = 0.0, keep_sent: int = 0):
         self.truth = truth
         self.board = board or RazorBoard()
         self.period_s = 1.0 / rate_hz
         self.boot_s = boot_s
         self.rng = np.random.default_rng(seed)
         self.line_errors = line_errors
+        self.delay_s = delay_s
+        self._held: deque[tuple[float, bytes]] = deque()
         self.sent: deque = deque(maxlen=keep_sent)
         self.frames_sent = 0
         self.connects = 0
@@ -51,6 +55,7 @@ class RazorTwin(ByteTwin):
     def on_connect(self, now_s: float) -> None:
         """Opening the port pulls DTR: the board resets and boots again."""
         self.connects += 1
+        self._held.clear()
         self._text = deque((now_s + BANNER_STEP_S * (k + 1), line.encode() + b"\r\n")
                            for k, line in enumerate(BANNER))
         self._next_frame = now_s + self.boot_delay_s
@@ -76,12 +81,15 @@ class RazorTwin(ByteTwin):
             if frame is None:
                 self._next_frame = None
                 break
-            out += self._on_line(frame)
+            self._held.append((self._next_frame + self.delay_s, self._on_line(frame)))
             self._next_frame += self.period_s
+        while self._held and self._held[0][0] <= now_s:
+            out += self._held.popleft()[1]
         return bytes(out)
 
     def next_due(self, now_s: float) -> float:
-        due = [t for t in (self._text[0][0] if self._text else None, self._next_frame) if t is not None]
+        due = [t for t in (self._text[0][0] if self._text else None, self._next_frame,
+                           self._held[0][0] if self._held else None) if t is not None]
         return min(due) if due else now_s + 0.05
 
     # -- frames -----------------------------------------------------------------------------

@@ -73,7 +73,8 @@ def record_twin(twin, script: Script) -> Recording:
         script.now = t - start - getattr(twin, "boot_delay_s", twin.boot_s)
         if script.now > script.duration_s:
             break
-        for _, frame in decoder.feed(twin.poll(t)):
+        # the board sends a frame, then the line is quiet until the next one
+        for _, frame in decoder.feed(twin.poll(t)) + decoder.silence():
             frames.append(frame)
             times.append(script.t0_ns + int(script.now * 1e9))
     if not frames:

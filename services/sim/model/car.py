@@ -15,22 +15,25 @@ from typing import Callable
 import numpy as np
 
 from viena.common.rotation import quat_from_euler
+from viena.common.settings import setting
 from viena.services.sim.model.route import Route, default_route
 from viena.common.geodesy import normal_gravity
 from viena.services.sim.model.truth import IST_ORIGIN, Truth
 
 
-@dataclass
+@dataclass(frozen=True)
 class CarParams:
-    wheelbase_m: float = 2.2
-    max_wheel_angle_rad: float = math.radians(29.0)
-    max_wheel_rate_radps: float = math.radians(30.0)
-    lookahead_m: float = 6.0
-    parked_s: float = 10.0          # standing still first, as a car does while its IMU aligns
-    speed_min_mps: float = 3.0
-    speed_max_mps: float = 5.0
-    speed_period_s: float = 40.0
-    max_accel_mps2: float = 1.0
+    """The simulated car and how it drives its route (settings of `viena-sim`)."""
+    wheelbase_m: float = setting(2.2, "distance between the axles")
+    max_wheel_angle_rad: float = setting(math.radians(29.0), "the front wheel's lock (29 deg)")
+    max_wheel_rate_radps: float = setting(math.radians(30.0),
+                                          "how fast the route follower turns the wheel (30 deg/s)")
+    lookahead_m: float = setting(6.0, "pure pursuit's look-ahead along the route")
+    parked_s: float = setting(10.0, "standing still first, as a car does while its IMU aligns")
+    speed_min_mps: float = setting(3.0, "slowest speed round the loop")
+    speed_max_mps: float = setting(5.0, "fastest speed round the loop")
+    speed_period_s: float = setting(40.0, "period of the speed's sine between the two")
+    max_accel_mps2: float = setting(1.0, "largest acceleration or braking")
 
 
 class SimCar:

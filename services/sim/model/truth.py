@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pymap3d
 
+from viena.common.display import fmt_deg, fmt_unit, fmt_vec, vector
 from viena.common.geodesy import LocalFrame
 from viena.common.rotation import euler_from_quat, quat_to_matrix
 from viena.common.schema import F, Schema
@@ -136,4 +137,15 @@ def truth_sample(truth: Truth) -> dict:
         "specific_force_mps2": truth.specific_force_body_mps2.tolist(),
         "speed_mps": float(truth.speed_mps),
         "wheel_angle_rad": float(truth.wheel_angle_rad),
+    }
+
+
+def monitor_view(sample: dict) -> dict[str, str]:
+    """How the monitor shows the simulated car's truth (any map: what came on its key)."""
+    euler = vector(sample.get("euler_rad"), 3)
+    return {
+        "position ENU m": fmt_vec(sample.get("enu_m")),
+        "speed": fmt_unit(sample.get("speed_mps"), "m/s"),
+        "yaw": "-" if euler is None else fmt_deg(euler[0]),
+        "wheel": fmt_deg(sample.get("wheel_angle_rad")),
     }

@@ -21,6 +21,8 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from viena.common.settings import setting
+
 SLOPE_DEG_PER_QC = -7.5014e-4
 LIMIT_DEG = 29.0
 
@@ -31,22 +33,22 @@ class CalibrationRefused(ValueError):
 
 @dataclass(frozen=True)
 class CalibrationSettings:
-    slope_deg_per_qc: float = SLOPE_DEG_PER_QC
-    limit_deg: float = LIMIT_DEG
+    slope_deg_per_qc: float = setting(SLOPE_DEG_PER_QC, "wheel angle per encoder count (the laser fit)")
+    limit_deg: float = setting(LIMIT_DEG, "the wheel's lock either side of the middle")
     #: the car's sweeps span 95 060 .. 95 352 qc; far outside means no sweep or a slipping gear
-    min_span_qc: int = 90_000
-    max_span_qc: int = 100_000
+    min_span_qc: int = setting(90_000, "shortest lock-to-lock sweep accepted")
+    max_span_qc: int = setting(100_000, "longest lock-to-lock sweep accepted")
     #: zeroRef must sit in the middle of the sweep (it is computed so; a typed one may not)
-    zero_tolerance_qc: int = 2
+    zero_tolerance_qc: int = setting(2, "how far a given zero may be from the sweep's middle")
     #: a sweep is over when the wheel is back near the middle and still
-    return_tolerance_qc: int = 6_000
-    settle_s: float = 0.5
-    still_qc: int = 200
+    return_tolerance_qc: int = setting(6_000, "back this near the middle ends a sweep ...")
+    sweep_settle_s: float = setting(0.5, "... once the wheel has been still this long")
+    still_qc: int = setting(200, "moving less than this is still")
     #: counter jumps no hand can make between two readings: an encoder or bus glitch.
     #: A busy host reads less often, so the allowance grows with the time between readings
     #: at a speed no person turns a steering wheel (lock to lock, ~95 000 qc, in < 1 s).
-    max_jump_qc: int = 20_000
-    max_hand_speed_qc_s: float = 100_000.0
+    max_jump_qc: int = setting(20_000, "a counter jump larger than this between readings is a glitch ...")
+    max_hand_speed_qc_s: float = setting(100_000.0, "... plus this much per second between them")
 
 
 @dataclass(frozen=True)
@@ -183,7 +185,7 @@ class SweepRecorder:
         if self.min_qc is None or self.span_qc < s.min_span_qc:
             return False
         back = abs(self.last_qc - zero_ref(self.min_qc, self.max_qc)) <= s.return_tolerance_qc
-        return back and self.still_since is not None and t - self.still_since >= s.settle_s
+        return back and self.still_since is not None and t - self.still_since >= s.sweep_settle_s
 
     def result(self) -> Calibration:
         """The calibration this sweep gives, checked (CalibrationRefused otherwise)."""

@@ -25,6 +25,7 @@ import logging
 from dataclasses import dataclass
 from enum import Enum
 
+from viena.common.settings import setting
 from viena.services.steering.model.actions import (Command, Configure, Connect, Cycle, DriveReading, Reply,
                                              SendTarget, WriteLimits)
 from viena.services.steering.model.arming import ArmSequence
@@ -51,13 +52,13 @@ class Phase(str, Enum):
 
 @dataclass(frozen=True)
 class ControllerSettings:
-    quickstop_hold_s: float = 0.1      # quick stop, hold this long, then power off
-    feedback_timeout_s: float = 0.2    # no TPDO for this long while armed: trip
-    state_period_s: float = 0.02       # the state callback's period (50 Hz)
-    arm_step_timeout_s: float = 0.3    # each DS402 step of an arm
-    silent_drive_s: float = 1.0        # no heartbeat this long: configure (and calibrate) again
-    reconnect_min_s: float = 0.5
-    reconnect_max_s: float = 5.0
+    quickstop_hold_s: float = setting(0.1, "quick stop, hold this long, then power off")
+    feedback_timeout_s: float = setting(0.2, "no TPDO for this long while armed: trip")
+    state_rate_hz: float = setting(50.0, "steering states published per second")
+    arm_step_timeout_s: float = setting(0.3, "longest wait for each DS402 step of an arm")
+    silent_drive_s: float = setting(1.0, "no heartbeat this long: configure (and calibrate) again")
+    reconnect_min_s: float = setting(0.5, "first wait before reopening a lost CAN link")
+    reconnect_max_s: float = setting(5.0, "longest wait between attempts to reopen it")
 
 
 class SteeringCore:

@@ -27,6 +27,7 @@ import math
 import secrets
 from dataclasses import dataclass, field
 
+from viena.common.settings import setting
 from viena.services.steering.model.requests import BadSetpoint, Setpoint
 
 log = logging.getLogger("viena.steering.safety")
@@ -36,13 +37,13 @@ ACCEPTED, CLAMPED, REJECTED = "accepted", "clamped", "rejected"
 
 @dataclass(frozen=True)
 class SafetySettings:
-    margin_deg: float = 1.0
-    slew_deg_s: float = 30.0
+    margin_deg: float = setting(1.0, "targets stay this far inside the calibrated range")
+    slew_deg_s: float = setting(30.0, "fastest change of the target")
     #: how far the target may lead the measured angle (the drive faults at 0x6065)
-    max_distance_deg: float = 4.0
-    watchdog_s: float = 0.5
+    max_distance_deg: float = setting(4.0, "furthest the target may lead the measured angle")
+    watchdog_s: float = setting(0.5, "armed and no valid setpoint this long: quick stop")
     #: a setpoint stamped (`t`, ns UTC) longer ago than this, or this far ahead, is stale
-    max_age_s: float = 0.5
+    max_age_s: float = setting(0.5, "a setpoint stamped longer ago, or further ahead, is stale")
 
 
 @dataclass(frozen=True)

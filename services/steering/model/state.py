@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from viena.common.display import fields_view
 from viena.common.schema import F, Schema
 
 if TYPE_CHECKING:                     # the schema alone must not pull in the CAN stack
@@ -33,6 +34,16 @@ STATE = Schema("viena.steering.state/1", {
     "decision": F.optional(F.map),            # {"status", "reason"} of the last setpoint
     "calibration": F.map,                     # state, min/max/zero/span qc, range_deg, problem
 })
+
+#: the fields a person at the monitor looks at first; the rest follow as they come
+MONITOR_FIRST = ("phase", "armed", "owner", "angle_deg", "target_deg", "goal_deg", "watchdog",
+                 "trip", "fault", "drive_heartbeat", "ds402", "decision", "limits")
+
+
+def monitor_view(state: dict) -> dict[str, str]:
+    """How the monitor shows a steering state (any map): every field, MONITOR_FIRST first,
+    since each may be the one that explains why the wheel does not move."""
+    return fields_view(state, MONITOR_FIRST)
 
 
 def sample(core: "SteeringCore", now: float, wall_ns: int, reading: "DriveReading", seq: int) -> dict:

@@ -83,7 +83,7 @@ def make_epos_device(name: str, table: dict, car, service) -> EposDevice:
         raise ConfigError(f"{source}: {exc}") from None
     if logging.getLogger().getEffectiveLevel() > logging.DEBUG:
         logging.getLogger("canopen").setLevel(logging.WARNING)   # a line per SDO otherwise
-    device = start_twin_on_hub(settings, host=service.settings.get("host", "127.0.0.1"),
+    device = start_twin_on_hub(settings, host=service.settings.host,
                                port=int(port), bitrate=int(bitrate))
     car.set_wheel_source(device.twin.wheel_angle_rad)
     device.twin.hands = car.driver_wheel_angle       # a person drives while the drive is off

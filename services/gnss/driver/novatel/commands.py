@@ -143,9 +143,19 @@ class DynamicsCommand(Command):
     dynamics: int = Dynamics.AIR
 
 
+def sbas_keyword_value(keyword: SbasKeyword, enable_value: int = SbasKeyword.ENABLE) -> int:
+    """The binary keyword to send for ENABLE or DISABLE to a receiver whose firmware reads
+    `enable_value` as ENABLE (0 in the OEM4 2.310 manual's table, 1 in later firmware);
+    DISABLE is the other value."""
+    if enable_value not in (0, 1):
+        raise ValueError(f"SBASCONTROL's ENABLE is 0 or 1, not {enable_value!r}")
+    return enable_value if keyword == SbasKeyword.ENABLE else 1 - enable_value
+
+
 @dataclass(frozen=True)
 class SbasControl(Command):
-    """SBASCONTROL: 16-byte body, keyword ENABLE = 0 (§2.6.50)."""
+    """SBASCONTROL: 16-byte body, keyword ENABLE = 0 by the OEM4 manual's table (§2.6.50;
+    see `sbas_keyword_value` for a firmware that reads it the other way)."""
 
     MESSAGE_ID = MessageId.SBASCONTROL
     _BODY = struct.Struct("<LLLL")

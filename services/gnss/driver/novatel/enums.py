@@ -33,6 +33,7 @@ class MessageId(OpenEnum):
     UNLOGALL = 38
     BESTPOS = 42
     BESTVEL = 99
+    RXCONFIG = 128
     BESTXYZ = 241
     DYNAMICS = 258
     SBASCONTROL = 652
@@ -117,7 +118,10 @@ class Dynamics(OpenEnum):
 
 
 class SbasKeyword(OpenEnum):
-    """SBASCONTROL keyword. ENABLE is 0 (the old library sent 1 believing it enabled)."""
+    """SBASCONTROL keyword as the OEM4 2.310 manual's table numbers it (§2.6.50: ENABLE 0,
+    DISABLE 1). Every other ENABLE/DISABLE of that manual, and later NovAtel firmware,
+    number them the other way (DISABLE 0, ENABLE 1): what a receiver reads is a setting
+    (`commands.sbas_keyword_value`), and RXCONFIG confirms it by name."""
 
     ENABLE = 0
     DISABLE = 1

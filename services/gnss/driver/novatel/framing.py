@@ -3,10 +3,13 @@
 The decoder is incremental and never trusts a byte it has not checked: every frame's
 CRC is verified before it is returned, a frame that fails is dropped and the search for
 the next sync resumes one byte after the failed sync, so a corrupted length field can
-never swallow the good frames behind it.
+never swallow the good frames behind it. Between binary frames it also takes the ASCII
+messages the receiver sends when asked for a log in ASCII (`#...*crc` CR LF, §1.1.1),
+checked by the same CRC, as `AsciiFrame`s (ascii.py reads them).
 """
 from __future__ import annotations
 
+import re
 import struct
 import zlib
 from dataclasses import dataclass, field, replace
@@ -19,6 +22,12 @@ CRC_LENGTH = 4
 #: Bodies longer than this are treated as a corrupted length (the largest OEM4 logs,
 #: RANGE and ALMANAC with all channels, stay under 4 kB).
 MAX_BODY_LENGTH = 8192
+
+#: An ASCII message: '#', printable text, '*', 8 hex digits of CRC, CR LF (§1.1.1).
+ASCII_SYNC = b"#"
+_PRINTABLE = re.compile(rb"[\x20-\x7e]*")
+#: Longer than any ASCII log viena asks for (RXCONFIG's longest lines are a few hundred).
+MAX_ASCII_LENGTH = 4096
 
 RESPONSE_BIT = 0x80
 #: Message type byte of binary messages as the receiver sends them and as the manual's
@@ -92,6 +101,15 @@ class Frame:
     t_host_ns: int = 0              # host clock when the frame's last byte was read
 
 
+@dataclass(frozen=True, slots=True)
+class AsciiFrame:
+    """One received ASCII message whose CRC checked out: its text from the name to the
+    last field (between '#' and '*')."""
+
+    text: str
+    t_host_ns: int = 0
+
+
 def unpack_header(buf, offset: int = 0) -> Header:
     """The header at ``offset`` (its sync is not checked here)."""
     fields = _HEADER.unpack_from(buf, offset)
@@ -115,6 +133,7 @@ class DecoderStats:
     length_errors: int = 0          # header length < 28 or body length beyond the limit
     resyncs: int = 0                # times sync was regained after bytes were skipped
     discarded_bytes: int = 0
+    ascii_messages: int = 0         # ASCII messages with a good CRC (also in `frames`)
 
 
 _NEED_MORE, _BAD_LENGTH, _BAD_CRC = -1, -2, -3
@@ -134,16 +153,30 @@ class FrameDecoder:
         self._buf.clear()
         self._lost = False
 
-    def feed(self, data: bytes, t_host_ns: int = 0) -> list[Frame]:
+    def feed(self, data: bytes, t_host_ns: int = 0) -> list[Frame | AsciiFrame]:
         buf = self._buf
         buf += data
-        frames: list[Frame] = []
+        frames: list[Frame | AsciiFrame] = []
         stats = self.stats
         n = len(buf)
         pos = 0
         while n - pos >= 3:
+            if buf[pos] == 0x23:                               # '#': an ASCII message?
+                end = self._ascii_end(buf, pos, n)
+                if end == _NEED_MORE:
+                    break
+                if end < 0:
+                    self._skip(1)
+                    pos += 1
+                    continue
+                text = bytes(buf[pos + 1:end]).rstrip(b"\r\n")[:-9]            # without *crc
+                frames.append(AsciiFrame(text.decode("ascii"), t_host_ns))
+                self._found()
+                stats.ascii_messages += 1
+                pos = end
+                continue
             if buf[pos] != 0xAA or buf[pos + 1] != 0x44 or buf[pos + 2] != 0x12:
-                nxt = buf.find(SYNC, pos + 1)
+                nxt = _next_start(buf, pos + 1)
                 if nxt < 0:
                     # keep a tail that may be the start of the next sync
                     nxt = n - 2 if buf[n - 2:] == SYNC[:2] else (n - 1 if buf[n - 1] == 0xAA else n)
@@ -171,14 +204,41 @@ class FrameDecoder:
             header = unpack_header(buf, pos)
             raw = bytes(buf[pos:end])
             frames.append(Frame(header, raw[header.header_length:-CRC_LENGTH], raw, t_host_ns))
-            stats.frames += 1
-            if self._lost:
-                stats.resyncs += 1
-                self._lost = False
+            self._found()
             pos = end
         if pos:
             del buf[:pos]
         return frames
+
+    def _found(self) -> None:
+        self.stats.frames += 1
+        if self._lost:
+            self.stats.resyncs += 1
+            self._lost = False
+
+    def _ascii_end(self, buf: bytearray, pos: int, n: int) -> int:
+        """End (after CR LF) of the ASCII message whose '#' is at pos, or why there is none:
+        a byte that is not printable before the line ends means it is not one."""
+        text_end = _PRINTABLE.match(buf, pos + 1).end()
+        if text_end - pos > MAX_ASCII_LENGTH:
+            return _BAD_LENGTH
+        if text_end == n or (buf[text_end] == 0x0D and text_end + 1 == n):
+            return _NEED_MORE
+        end = text_end + 2 if buf[text_end] == 0x0D else text_end + 1
+        if buf[end - 1] != 0x0A:
+            return _BAD_LENGTH
+        text = buf[pos + 1:text_end]
+        star = text_end - pos - 1 - 9
+        if star < 0 or text[star] != 0x2A:
+            return _BAD_LENGTH
+        try:
+            crc = int(text[star + 1:], 16)
+        except ValueError:
+            return _BAD_LENGTH
+        if crc32(text[:star]) != crc:
+            self.stats.crc_errors += 1
+            return _BAD_CRC
+        return end
 
     def _frame_end(self, buf: bytearray, pos: int, n: int) -> int:
         """End of the CRC-checked frame whose sync is at pos, or why there is none."""
@@ -210,3 +270,10 @@ class FrameDecoder:
         if count > 0:
             self.stats.discarded_bytes += count
             self._lost = True
+
+
+def _next_start(buf: bytearray, start: int) -> int:
+    """Where the next binary sync or ASCII '#' is, from `start` (-1: none)."""
+    binary = buf.find(SYNC, start)
+    text = buf.find(ASCII_SYNC, start, binary if binary >= 0 else len(buf))
+    return text if text >= 0 else binary

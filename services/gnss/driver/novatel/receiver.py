@@ -11,6 +11,11 @@ Usable from a Python shell::
 Each command waits for the response carrying its own message ID (response bit set), so a
 response can never be taken for the next command's (the old library's desync); a
 rejection raises CommandError with the receiver's text, silence raises CommandTimeout.
+
+With ``StartupConfig(read_config=True)`` the start-up ends by asking for RXCONFIG in ASCII:
+the receiver lists every setting it holds, enumerations by name, and ``config`` keeps the
+latest of each (``sbas()`` is SBASCONTROL's), so what the receiver does can be checked
+against what was asked in the receiver's own words.
 """
 from __future__ import annotations
 
@@ -26,14 +31,15 @@ import serial
 from viena.common.link import SerialLink
 from viena.common.link_reader import LinkReader
 
+from .ascii import AsciiError, ConfigEntry, config_entry, message_of
 from .commands import (
     BodyError, Com, Command, CommandError, CommandTimeout, DynamicsCommand, Log, Reset,
-    Response, SaveConfig, SbasControl, Unlog, Unlogall,
+    Response, SaveConfig, SbasControl, Unlog, Unlogall, sbas_keyword_value,
 )
 from .enums import (
-    Dynamics, MessageId, Port, SbasKeyword, SbasSystem, SbasTestMode, Trigger,
+    Dynamics, MessageFormat, MessageId, Port, SbasKeyword, SbasSystem, SbasTestMode, Trigger,
 )
-from .framing import MAX_BODY_LENGTH, DecoderStats, Frame, FrameDecoder
+from .framing import MAX_BODY_LENGTH, AsciiFrame, DecoderStats, Frame, FrameDecoder
 from .logs import LogMessage, decode_log
 
 log = logging.getLogger(__name__)
@@ -69,7 +75,9 @@ class StartupConfig:
     sbas_system: SbasSystem = SbasSystem.AUTO
     sbas_prn: int = 0
     sbas_testmode: SbasTestMode = SbasTestMode.NONE
+    sbas_enable_value: int = 0      # what the firmware reads as ENABLE (manual: 0; later: 1)
     logs: tuple[LogRequest, ...] = (LogRequest(),)
+    read_config: bool = False       # end with LOG RXCONFIGA ONCE: the settings by name
 
 
 @dataclass
@@ -83,6 +91,7 @@ class ReceiverStats(DecoderStats):
     body_errors: int = 0            # good CRC, body size wrong for its message ID
     command_failures: int = 0       # rejected or unanswered commands
     dropped_logs: int = 0           # read() queue full: nobody is reading
+    config_logs: int = 0            # RXCONFIG logs (one per setting)
 
 
 class _Pending:
@@ -118,6 +127,10 @@ class NovatelReceiver:
         self._pending: _Pending | None = None
         self._state_lock = threading.Lock()
         self.last_frame_host_ns = 0
+        #: the receiver's settings as its last RXCONFIG listed them, by command name
+        self.config: dict[str, ConfigEntry] = {}
+        #: why the RXCONFIG request of the last start-up failed ("" if it did not)
+        self.config_request_error = ""
 
     # -- port ------------------------------------------------------------------------
     @property
@@ -127,6 +140,8 @@ class NovatelReceiver:
     def open(self, baudrate: int = 9600) -> None:
         self._reader.stop()           # an old reader must not see its port close
         self._decoder.reset()
+        self.config = {}              # what another connection read may no longer hold
+        self.config_request_error = ""
         self._link.open(baudrate)
         self._reader.start()
 
@@ -173,9 +188,10 @@ class NovatelReceiver:
 
     def log(self, message: MessageId | int, trigger: Trigger = Trigger.ONTIME,
             period: float = 0.0, offset: float = 0.0, hold: bool = False,
-            port: Port = Port.THISPORT) -> Response:
-        return self.command(Log(port=port, message=message, trigger=trigger, period=period,
-                                offset=offset, hold=int(hold)))
+            port: Port = Port.THISPORT, fmt: MessageFormat = MessageFormat.BINARY) -> Response:
+        """LOG; `fmt` ASCII asks for the log in ASCII (bits 5-6 of its message type)."""
+        return self.command(Log(port=port, message=message, message_type=int(fmt) << 5,
+                                trigger=trigger, period=period, offset=offset, hold=int(hold)))
 
     def unlog(self, message: MessageId | int, port: Port = Port.THISPORT) -> Response:
         return self.command(Unlog(port=port, message=message))
@@ -193,8 +209,16 @@ class NovatelReceiver:
 
     def sbascontrol(self, keyword: SbasKeyword = SbasKeyword.ENABLE,
                     system: SbasSystem = SbasSystem.AUTO, prn: int = 0,
-                    testmode: SbasTestMode = SbasTestMode.NONE) -> Response:
-        return self.command(SbasControl(keyword, system, prn, testmode))
+                    testmode: SbasTestMode = SbasTestMode.NONE,
+                    enable_value: int = SbasKeyword.ENABLE) -> Response:
+        """SBASCONTROL, its keyword sent as `enable_value` for ENABLE (the other for DISABLE)."""
+        return self.command(SbasControl(sbas_keyword_value(keyword, enable_value), system, prn,
+                                        testmode))
+
+    def sbas(self) -> ConfigEntry | None:
+        """SBASCONTROL as the receiver's last RXCONFIG listed it (fields: keyword, system,
+        prn, testmode, by name), or None before one came."""
+        return self.config.get("SBASCONTROL")
 
     def reset(self, delay: int = 0) -> Response:
         return self.command(Reset(delay))
@@ -226,9 +250,21 @@ class NovatelReceiver:
         self.dynamics(config.dynamics)
         if config.sbas is not None:
             self.sbascontrol(config.sbas, config.sbas_system, config.sbas_prn,
-                             config.sbas_testmode)
+                             config.sbas_testmode, config.sbas_enable_value)
         for req in config.logs:
             self.log(req.message, req.trigger, req.period, req.offset, req.hold)
+        if config.read_config:
+            self._request_config()
+
+    def _request_config(self) -> None:
+        """LOG RXCONFIGA ONCE: the receiver's settings arrive as ASCII logs (into `config`).
+        Last, so that its few kilobytes delay no command's response; a receiver that
+        refuses it is still a working receiver, so that is only noted."""
+        try:
+            self.log(MessageId.RXCONFIG, Trigger.ONCE, fmt=MessageFormat.ASCII)
+        except (CommandError, CommandTimeout) as exc:
+            self.config_request_error = str(exc)
+            log.warning("%s: cannot read the receiver's configuration: %s", self.url, exc)
 
     def _reset_port_by_break(self) -> None:
         self._link.send_break(BREAK_S)
@@ -267,8 +303,22 @@ class NovatelReceiver:
     def _on_bytes(self, data: bytes, t_host_ns: int) -> None:
         for frame in self._decoder.feed(data, t_host_ns):
             self.last_frame_host_ns = t_host_ns
-            self._dispatch(frame)
+            if isinstance(frame, AsciiFrame):
+                self._on_ascii(frame)
+            else:
+                self._dispatch(frame)
         self._sync_decoder_stats()
+
+    def _on_ascii(self, frame: AsciiFrame) -> None:
+        """ASCII logs: RXCONFIG's settings are kept; nothing else is asked for in ASCII."""
+        try:
+            entry = config_entry(message_of(frame))
+        except AsciiError as exc:
+            self.stats.unknown_messages += 1
+            log.debug("%s: ASCII message not used: %s", self.url, exc)
+            return
+        self.stats.config_logs += 1
+        self.config[entry.command] = entry
 
     def _dispatch(self, frame: Frame) -> None:
         stats = self.stats
@@ -313,6 +363,7 @@ class NovatelReceiver:
         s = self.stats
         s.frames, s.crc_errors, s.length_errors = d.frames, d.crc_errors, d.length_errors
         s.resyncs, s.discarded_bytes = d.resyncs, d.discarded_bytes
+        s.ascii_messages = d.ascii_messages
 
     def _on_error(self, exc: Exception) -> None:
         log.warning("%s: port failed: %s", self.url, exc)

@@ -1,0 +1,205 @@
+"""The car's attitude: Madgwick's filter, and who corrects its tilt when.
+
+- alignment: at start (and after a long gap, or when another IMU takes over) the specific
+  force, rate and field are averaged over `align_s` while the car stands; roll and pitch
+  come from the mean specific force, yaw from the field if it is plausible; a still
+  gyro's mean reading is its bias;
+- then per IMU sample, Madgwick's step (MARG when a plausible magnetometer reading is
+  there, else IMU-only) with the gyro's bias removed. Its gain says who corrects the tilt:
+  * standing (or nothing tells the car's own acceleration): the accelerometer levels the
+    attitude, gain `madgwick_beta`;
+  * moving, GNSS velocity coming: the Kalman filter's tilt states do, from how the
+    velocity goes wrong (kalman.py), and hand their estimate over (`correct_tilt`);
+    Madgwick only integrates the gyro (`madgwick_beta_aided`, 0), the yaw is corrected by
+    the heading filter (course, magnetometer);
+  * moving without GNSS velocity: the accelerometer minus the turn's centripetal part
+    levels it slowly (`madgwick_beta_coast`).
+  Madgwick's step is normalised: any steady disagreement moves the attitude at full
+  speed, so it may only be fed a "down" that is right on average *at every moment*;
+  the car's own acceleration between GNSS fixes is not that, hence the split.
+- the reported roll and pitch variance is the Kalman filter's, or before it has one, how
+  much the accelerometer disagrees.
+
+Plain floats: this runs for every IMU sample. Equations: docs/estimator.md#attitude-madgwick-filter.
+"""
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from viena.common.rotation import wrap_angle
+from viena.services.estimator.angles import tilt_from_specific_force
+from viena.services.estimator.heading import UNKNOWN_VAR
+from viena.services.estimator.madgwick import Madgwick, attitude_from_vectors
+from viena.services.estimator.settings import EstimatorSettings
+
+_IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+
+
+class Attitude:
+    """Madgwick's filter and what it is fed. `rot` is the body -> ENU rotation (row-major
+    9 floats), `rate` the bias-corrected gyro, `gyro_bias` what is taken off the gyro."""
+
+    def __init__(self, settings: EstimatorSettings, counts: dict, log: logging.Logger):
+        s = self.settings = settings
+        self.counts, self.log = counts, log
+        self.beta, self.beta_coast = s.madgwick_beta, s.madgwick_beta_coast
+        self.beta_aided = s.madgwick_beta_aided
+        self.declination = math.radians(s.mag_declination_deg)
+        self.use_mag = s.use_magnetometer
+        field = np.asarray(s.mag_field_nT, float) * 1e-9
+        norm = float(np.linalg.norm(field))
+        dip = math.asin(-field[2] / norm)                    # positive down
+        tol, dip_tol = s.mag_norm_tolerance, math.radians(s.mag_dip_tolerance_deg)
+        self._mag_bounds = (((1 - tol) * norm) ** 2, ((1 + tol) * norm) ** 2,
+                            math.sin(max(0.0, dip - dip_tol)), math.sin(min(0.5 * math.pi, dip + dip_tol)))
+        self.att = Madgwick(self.beta, self.declination)
+        self.aligned = False
+        self.mag_heading = False             # the magnetometer gave the yaw
+        self.gyro_bias = [0.0, 0.0, 0.0]
+        self.rot = _IDENTITY
+        self.rate = (0.0, 0.0, 0.0)
+        self.tilt_var = [UNKNOWN_VAR, UNKNOWN_VAR]    # about the forward and the right axis
+        self._down = (0.0, 0.0, 1.0)         # the last motion-compensated specific force
+        self._realign()
+
+    @property
+    def yaw(self) -> float:
+        """Yaw of the attitude as the filters use it: atan2(R[1,0], R[0,0])."""
+        r = self.rot
+        return math.atan2(r[3], r[0])
+
+    def _realign(self) -> None:
+        self.aligned = False
+        self._align = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]  # n, f, w, m, n_mag
+        self._align_t0: int | None = None
+
+    def realign(self) -> None:
+        """Roll and pitch are no longer to be trusted (a long gap, another IMU): align again."""
+        self._realign()
+
+    # -- alignment -----------------------------------------------------------------------------
+    def gather(self, t: int, fx, fy, fz, gx, gy, gz, mag, keep_yaw: bool) -> None:
+        """Average the specific force (and field, rate) over align_s, then set the attitude;
+        `keep_yaw`: a realignment keeps the yaw that the heading filter knew."""
+        a = self._align
+        if self._align_t0 is None:
+            self._align_t0 = t
+        a[0] += 1
+        a[1] += fx; a[2] += fy; a[3] += fz
+        a[4] += gx; a[5] += gy; a[6] += gz
+        if mag is not None:
+            a[7] += mag[0]; a[8] += mag[1]; a[9] += mag[2]; a[10] += 1
+        s = self.settings
+        if (t - self._align_t0) * 1e-9 < s.align_s:
+            return
+        n = a[0]
+        f = (a[1] / n, a[2] / n, a[3] / n)
+        w = (a[4] / n, a[5] / n, a[6] / n)
+        m = (a[7] / a[10], a[8] / a[10], a[9] / a[10]) if a[10] else None
+        if math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) < math.radians(s.max_gyro_bias_dps):
+            self.gyro_bias = [self.gyro_bias[k] + w[k] for k in range(3)]
+        use_mag = m is not None and self.use_mag and self.mag_plausible(m, *f)
+        yaw = self.yaw
+        self.att.set_quaternion(attitude_from_vectors(f, m if use_mag else None, self.declination))
+        if keep_yaw:                         # realigning roll/pitch after a gap: keep the yaw
+            r = _rotation(self.att)
+            self.att.rotate_world_z(wrap_angle(yaw - math.atan2(r[3], r[0])))
+        self.rot = _rotation(self.att)
+        self.mag_heading = use_mag
+        self.aligned = True
+        self.tilt_var = [math.radians(1.0) ** 2] * 2
+        pitch, roll = tilt_from_specific_force(*f)
+        self.log.info("attitude aligned over %d samples: roll %.2f pitch %.2f deg%s", n,
+                      math.degrees(roll), math.degrees(pitch),
+                      ", yaw from the magnetometer" if use_mag else "")
+
+    # -- per sample ----------------------------------------------------------------------------
+    def update(self, dt: float, ax, ay, az, gx, gy, gz, mag, speed, aided: bool, still: bool) -> None:
+        """One Madgwick step with the bias-corrected rate (gx, gy, gz). `speed`: the filter's
+        velocity along the car's forward axis when position and yaw are known (else None);
+        `aided`: GNSS velocity came within the last second; `still`: the car stands."""
+        if still or speed is None:
+            beta, mx, mz = (self.beta if still else self.beta_coast), 0.0, 0.0
+        elif aided:
+            beta, mx, mz = self.beta_aided, 0.0, 0.0
+        else:
+            # a car moves along its forward axis: body velocity (0, s, 0), so the turn's
+            # acceleration is w x v_b = (-w_z s, 0, w_x s); the change of s would only echo
+            # the attitude back to itself without GNSS
+            beta, mx, mz = self.beta_coast, -gz * speed, gx * speed
+        att = self.att
+        att.beta = beta
+        if dt > 0.0:
+            ux, uy, uz = ax - mx, ay, az - mz
+            if beta > 0.0 and mag is not None and self.use_mag and self.mag_plausible(mag, ux, uy, uz):
+                att.update_marg(gx, gy, gz, ux, uy, uz, mag[0], mag[1], mag[2], dt)
+                self.mag_heading = True
+            else:
+                att.update_imu(gx, gy, gz, ux, uy, uz, dt)
+            self._down = (ux, uy, uz)
+        self.rot = _rotation(att)
+
+    def correct_tilt(self, east_rad: float, north_rad: float) -> None:
+        """Turn the attitude by the Kalman filter's tilt estimate, about East and North."""
+        if east_rad or north_rad:
+            self.att.rotate_world(east_rad, north_rad, 0.0)
+            self.rot = _rotation(self.att)
+
+    def mag_plausible(self, m, fx, fy, fz) -> bool:
+        """Earth's field has a known strength and dip; a motor's or a magnet's has not.
+        (Compared squared, without roots: this runs for every sample.)"""
+        mx, my, mz = m
+        m2 = mx * mx + my * my + mz * mz
+        lo2, hi2, s_lo, s_hi = self._mag_bounds
+        ok = lo2 <= m2 <= hi2
+        if ok:
+            # sin(dip) = -(m . f) / (|m| |f|), f pointing up; dip within its tolerance
+            c = -(mx * fx + my * fy + mz * fz)
+            mf2 = m2 * (fx * fx + fy * fy + fz * fz)
+            ok = c > 0.0 and s_lo * s_lo * mf2 <= c * c <= s_hi * s_hi * mf2
+        if not ok:
+            self.counts["mag_rejected"] += 1
+        return ok
+
+    def tilt_residual(self, dt: float) -> None:
+        """Mean square of the tilt the (motion-compensated) accelerometer disagrees with,
+        over ~10 s: what the attitude's roll and pitch variance are reported as."""
+        r = self.rot
+        ux, uy, uz = self._down
+        n = math.sqrt(ux * ux + uy * uy + uz * uz)
+        if n == 0.0:
+            return
+        # gravity's reaction as the attitude sees it is R^T [0, 0, 1] = third row of R
+        ex = r[6] - ux / n
+        ey = r[7] - uy / n
+        k = min(1.0, dt / 10.0)
+        v = self.tilt_var
+        v[0] += k * (ex * ex - v[0])      # about the forward axis: roll
+        v[1] += k * (ey * ey - v[1])      # about the right axis: pitch
+
+    def rotate_yaw(self, angle_rad: float) -> None:
+        """Turn the attitude about the world up axis (a yaw correction)."""
+        self.att.rotate_world_z(angle_rad)
+        self.rot = _rotation(self.att)
+
+
+def _rotation(att: Madgwick) -> tuple:
+    """Body -> ENU rotation matrix of the attitude, row-major 9-tuple."""
+    w, x, y, z = att.q
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+
+
+def rotate(r, v):
+    """r v for a row-major 9-tuple r."""
+    return (r[0] * v[0] + r[1] * v[1] + r[2] * v[2],
+            r[3] * v[0] + r[4] * v[1] + r[5] * v[2],
+            r[6] * v[0] + r[7] * v[1] + r[8] * v[2])
+
+
+def cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])

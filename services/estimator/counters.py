@@ -1,0 +1,30 @@
+"""What the estimator counts: inputs used and refused, and why it last reset itself.
+
+One object shared by the estimator's parts, so each counts where it decides, and the
+state reports it all (`counts`, `gnss_used`, `gnss_rejected`, `input_rejected`,
+`last_reset`). Counters survive resets: they are the estimator's history, not the
+filter's.
+"""
+from __future__ import annotations
+
+
+class Counters:
+    def __init__(self):
+        self.counts = {"imu": 0, "gnss": 0, "gnss_decimated": 0, "imu_gaps": 0, "resets": 0,
+                       "mag_rejected": 0, "nhc": 0, "zupt": 0, "course_used": 0}
+        self.gnss_used = 0
+        self.gnss_rejected: dict[str, int] = {}
+        self.input_rejected: dict[str, int] = {}
+        self.last_reset: str | None = None
+
+    def input(self, reason: str) -> None:
+        """Bad or late input, refused before any filter saw it."""
+        self.input_rejected[reason] = self.input_rejected.get(reason, 0) + 1
+
+    def gnss(self, reason: str) -> None:
+        """A well-formed fix (or part of one) that the filter refused."""
+        self.gnss_rejected[reason] = self.gnss_rejected.get(reason, 0) + 1
+
+    def reset(self, reason: str) -> None:
+        self.counts["resets"] += 1
+        self.last_reset = reason

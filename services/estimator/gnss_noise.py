@@ -1,0 +1,60 @@
+"""How much of a receiver's error is white, seen from its own fixes.
+
+A receiver's sigma says how wrong a fix may be, not how that error moves: a standalone
+receiver's error wanders over minutes (orbits, clocks, the atmosphere: seed table 5.2),
+an RTK or a simulated white one jumps from fix to fix. Averaging fixes helps with the
+second and not at all with the first, so the Kalman filter splits each fix's variance:
+a white part, used as the fix's own noise, and a wandering part, the receiver's error
+state (kalman.py).
+
+The split is learnt. From one fix to the next the wandering part barely moves, and the
+IMU knows how the antenna moved, so half the square of (change of the fix - change of
+the antenna by the IMU) is the white variance. Its ratio to the reported variance,
+averaged over the last `AVERAGE_FIXES` fixes, horizontally and vertically, is the white
+share; until fixes have shown it, the setting `gnss_white_fraction` stands in.
+(An innovation-based estimate of the measurement noise, after Mehra 1970 and Groves 2013
+ch. 3 "adaptive Kalman filter", taken on time differences so the wandering part drops out.)
+"""
+from __future__ import annotations
+
+#: the share is an average over about this many fix-to-fix differences
+AVERAGE_FIXES = 200
+#: a share is never taken as less (a receiver is never perfectly smooth) ...
+MIN_SHARE = 0.02
+#: ... and one difference never counts as more than this (one wild fix is not a share)
+MAX_RATIO = 4.0
+#: fixes further apart than this say little about the white part
+MAX_GAP_NS = 1_500_000_000
+
+
+class WhiteShare:
+    """The white share of one receiver's variance: `horizontal` and `vertical`."""
+
+    def __init__(self, prior: float):
+        self.horizontal = self.vertical = max(MIN_SHARE, min(1.0, prior))
+        self.n = 0
+        self._last = None                  # (t, fix ENU, antenna ENU by the IMU alone)
+
+    def forget(self) -> None:
+        """The IMU's trajectory was cut (a reset, a spell without IMU): start the pairs again."""
+        self._last = None
+
+    def observe(self, t: int, z, antenna, var_e: float, var_n: float, var_u: float) -> None:
+        """A fix at t: its ENU position `z`, the antenna's position `antenna` on the
+        trajectory the IMU moved (corrections left out), and its variances along E, N, U."""
+        last, self._last = self._last, (t, z, antenna)
+        if last is None or not 0 < t - last[0] <= MAX_GAP_NS:
+            return
+        _, z0, a0 = last
+        de = (z[0] - z0[0]) - (antenna[0] - a0[0])
+        dn = (z[1] - z0[1]) - (antenna[1] - a0[1])
+        du = (z[2] - z0[2]) - (antenna[2] - a0[2])
+        rh = min(MAX_RATIO, 0.25 * (de * de + dn * dn) / (0.5 * (var_e + var_n)))
+        rv = min(MAX_RATIO, 0.5 * du * du / var_u)
+        self.n += 1
+        k = 1.0 / min(self.n, AVERAGE_FIXES)
+        # the prior counts as one difference, so a first lucky one does not decide
+        if self.n == 1:
+            k = 0.5
+        self.horizontal = max(MIN_SHARE, min(1.0, self.horizontal + k * (rh - self.horizontal)))
+        self.vertical = max(MIN_SHARE, min(1.0, self.vertical + k * (rv - self.vertical)))

@@ -1,0 +1,368 @@
+"""A GNSS fix into the filters: gates, lever arm, the state at the fix's time, resets.
+
+For each fix the timeline hands over:
+- gates: a solution (status), used at most `gnss_max_rate_hz` per receiver, sigmas below
+  `max_pos_sigma_m`;
+- the measurement: the antenna's ENU position and velocity with their covariances (from
+  ENU sigmas when the fix has them, else from ECEF ones), the lever arm taken off
+  (p + R l, v + R (w x l)); while the attitude is unknown the arm's direction is too,
+  and its length widens the fix;
+- the fix's variance split into a white part and the receiver's slowly wandering error
+  (gnss_noise.py, the receiver's error states in kalman.py), each fix widened by what
+  the IMU clock's uncertainty makes of it (timing.py);
+- the innovation against the state *at the fix's time* (the trajectory history), and
+  the velocity's at its own, older time (its latency: `gnss_vel_latency_s`, else the
+  fix's `vel_latency_s`); one Kalman update with the car's pseudo-measurements riding
+  along, each block gated (docs/estimator.md#innovation-gate); the tilt it found goes to
+  the attitude;
+- the yaw: the course over ground from a velocity that passed, or, after a few refused
+  in a row, from the refused one with its disagreement as its uncertainty; from the
+  positions' own direction for a receiver without velocity (NMEA GGA);
+- usable fixes that keep failing the gate for `gnss_reset_s`: GNSS is believed, position,
+  velocity and yaw start again from it.
+Equations: docs/estimator.md#gnss-update-and-lever-arm.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from viena.common.geodesy import LocalFrame
+from viena.services.estimator.attitude import cross, rotate
+from viena.services.estimator.gnss_noise import WhiteShare
+from viena.services.estimator.kalman import Diverged
+from viena.services.estimator.timing import OffsetHint
+from viena.services.gnss.model.fix import Fix
+
+#: a receiver's velocity refused this many times in a row: its course is used anyway
+COURSE_AFTER_REFUSALS = 3
+#: a position-only receiver's course is taken over at least this long (s) ...
+POSITION_COURSE_MIN_S = 0.5
+#: ... and at most this long (older positions are dropped)
+POSITION_COURSE_MAX_S = 2.0
+#: the largest white share: a receiver is never taken as having no wandering error at all
+MAX_WHITE_SHARE = 0.98
+#: the size of a receiver's wandering error follows its sigmas over this long (s)
+LEVEL_TAU_S = 30.0
+
+
+class GnssUpdate:
+    """The estimator's GNSS side; `est` is the Estimator, whose current filters it corrects."""
+
+    def __init__(self, est):
+        self.est = est
+        s = self.settings = est.settings
+        self.lever_default = tuple(float(v) for v in s.default_lever_arm_m)
+        self.levers = {u: tuple(float(v) for v in arm) for u, arm in s.gnss_lever_arm_m.items()}
+        for arm in (self.lever_default, *self.levers.values()):
+            if len(arm) != 3:
+                raise ValueError("a lever arm is [x right, y forward, z up] in m")
+        for unit, latency in s.gnss_vel_latency_s.items():
+            if not 0.0 <= latency <= 1.0:
+                raise ValueError(f"gnss_vel_latency_s.{unit}: a latency of 0 to 1 s, got {latency!r}")
+        rate = s.gnss_max_rate_hz
+        # a fix due at the rate is used even if it comes a little early (5 ms of jitter)
+        self.fix_interval_ns = int(1e9 / rate) - 5_000_000 if rate > 0 else 0
+        self.last_fix_t: dict[str, int] = {}    # last usable fix per unit
+        self.used_fix_t: dict[str, int] = {}    # last fix used per unit (rate limit)
+        self.white: dict[str, WhiteShare] = {}  # what is white of each receiver's variance
+        self.level: dict[str, tuple] = {}       # each receiver's variance, smoothed, and when
+        self.timing = OffsetHint()              # what the residuals say of the IMU's clock
+        self.restart()
+
+    def restart(self) -> None:
+        """A new estimate: forget what the old one made of the fixes (not their times)."""
+        self.reject_since: int | None = None    # usable fixes failing the gate since
+        self.speed, self.speed_t = math.inf, None   # last GNSS horizontal speed, and its time
+        self.vel_refused: dict[str, int] = {}   # each receiver's velocities refused in a row
+        self.positions: dict[str, tuple] = {}   # a position-only receiver's course anchor
+        self.arm_known = False                  # the position is the body origin's, not an antenna's
+        for share in self.white.values():
+            share.forget()
+
+    def forget_times(self) -> None:
+        """A new timeline: the receivers' times so far mean nothing."""
+        self.last_fix_t.clear()
+        self.used_fix_t.clear()
+        self.timing = OffsetHint()
+
+    def live_units(self, t: int, timeout_ns: int) -> list[str]:
+        return sorted(u for u, tf in self.last_fix_t.items() if t - tf < timeout_ns)
+
+    def says_still(self, t_imu: int, kf_speed: float, still_mps: float, timeout_ns: int) -> bool:
+        """GNSS (lately) and the filter both put the speed below still_mps."""
+        return (self.speed_t is not None and self.speed < still_mps
+                and t_imu - self.speed_t < timeout_ns and kf_speed < still_mps)
+
+    def time_var(self) -> float:
+        """Variance of the IMU's clock against GNSS's (s^2): the setting's, and the offset
+        the residuals point at, until it is set right."""
+        late = self.timing.late_s
+        return self.settings.imu_time_sigma_s ** 2 + late * late
+
+    # -- one fix -------------------------------------------------------------------------------
+    def use(self, fix: Fix) -> None:
+        try:
+            self._use(fix)
+        except Diverged as exc:
+            self.est.reset(f"diverged: {exc}")
+
+    def _use(self, fix: Fix) -> None:
+        est, s = self.est, self.settings
+        counters = est.counters
+        if not fix.usable:
+            counters.gnss("status")
+            return
+        unit = fix.unit
+        self.last_fix_t[unit] = max(fix.t, self.last_fix_t.get(unit, fix.t))
+        # A receiver's errors are correlated over a second or more: fixes at 20 Hz are
+        # not 20 independent measurements a second. Fewer cost less and lose nothing.
+        used = self.used_fix_t.get(unit)
+        if used is not None and 0 <= fix.t - used < self.fix_interval_ns:
+            counters.counts["gnss_decimated"] += 1
+            return
+        self.used_fix_t[unit] = fix.t
+        if max(fix.enu_sigma_m or fix.ecef_sigma_m) > s.max_pos_sigma_m:
+            counters.gnss("sigma")
+            return
+        if est.frame is None:
+            est.set_origin(LocalFrame.at_ecef(fix.ecef_m), "first_fix")
+        frame = est.frame
+        timeline = est.timeline
+        imu_mode = timeline.imu_live_at(fix.t)
+        if not imu_mode:
+            self._coast_to(fix.t)
+
+        z = frame.enu_of_ecef(fix.ecef_m)
+        if fix.enu_sigma_m is not None:
+            cov = np.diag(np.square(fix.enu_sigma_m))
+        else:
+            cov = frame.cov_to_enu(fix.ecef_sigma_m)
+        lever = self.levers.get(unit, self.lever_default)
+        att = est.attitude
+        r = att.rot
+        known_att = att.aligned and est.heading.valid
+        arm = rotate(r, lever) if known_att else (0.0, 0.0, 0.0)
+        vel = velR = None
+        if fix.vel_ecef_mps is not None:
+            vel = frame.vector_to_enu(fix.vel_ecef_mps)
+            sig = fix.vel_sigma_mps or (s.vel_sigma_default_mps,) * 3
+            velR = frame.cov_to_enu(sig)
+            # the antenna moves with the car's turning: v_ant = v + R (w x r)
+            w = att.rate if imu_mode else (0.0, 0.0, 0.0)
+            arm_v = rotate(r, cross(w, lever)) if known_att else (0.0, 0.0, 0.0)
+            vel = (vel[0] - arm_v[0], vel[1] - arm_v[1], vel[2] - arm_v[2])
+
+        # the fix's variance: a white part, and the receiver's wandering error
+        share = self.white.get(unit)
+        if share is None:
+            share = self.white[unit] = WhiteShare(s.gnss_white_fraction)
+        sh, sv = min(MAX_WHITE_SHARE, share.horizontal), min(MAX_WHITE_SHARE, share.vertical)
+        if imu_mode:
+            d = np.array([math.sqrt(sh), math.sqrt(sh), math.sqrt(sv)])
+            Rp = cov * np.outer(d, d)
+        else:
+            # without the IMU nothing tells the car's motion from the fixes' jumps: the
+            # constant-velocity model would follow every one; the whole sigma is the fix's
+            Rp = cov
+        var = cov.diagonal()
+        # the wandering error's size follows the receiver's sigmas over LEVEL_TAU_S, not
+        # each fix's: one fix with a wild sigma says little about the sky's error
+        level = self.level.get(unit)
+        if level is None:
+            level = var.tolist()
+        else:
+            k = min(1.0, max(0.0, (fix.t - level[3]) * 1e-9) / LEVEL_TAU_S)
+            level = [level[i] + k * (var[i] - level[i]) for i in range(3)]
+        self.level[unit] = (*level[:3], fix.t)
+        wander = (math.sqrt((1.0 - sh) * level[0]), math.sqrt((1.0 - sh) * level[1]),
+                  math.sqrt((1.0 - sv) * level[2]))
+        if not known_att:                   # the arm's direction is unknown: widen the fix
+            Rp = Rp + np.eye(3) * (lever[0] ** 2 + lever[1] ** 2 + lever[2] ** 2)
+
+        kf = est.kf
+        kf.receiver(unit, wander)
+        kf.rescale_receiver(unit, wander)
+        if not kf.initialized:
+            self._initialize(fix, z, Rp, arm, vel, velR, wander)
+            return
+        if known_att and not self.arm_known:
+            # while the yaw was unknown the position followed the antenna; now that the
+            # arm's direction is known, it moves to the body origin (and its past with it)
+            kf.x[0] -= arm[0]
+            kf.x[1] -= arm[1]
+            kf.x[2] -= arm[2]
+            est.history.correct(dp=(-arm[0], -arm[1], -arm[2]))
+            self.arm_known = True
+
+        then = self._state_at(fix.t)
+        if then is None:
+            counters.input("gnss_late")
+            return
+        p, v_then = then[0], then[1]
+        # a late fix: the antenna's arm (and the turn's acceleration) as the car pointed then
+        c, sn = math.cos(then[2] - att.yaw), math.sin(then[2] - att.yaw)
+        arm = (c * arm[0] - sn * arm[1], sn * arm[0] + c * arm[1], arm[2])
+        accel = est.accel_enu
+        accel = (c * accel[0] - sn * accel[1], sn * accel[0] + c * accel[1], accel[2])
+        if imu_mode:
+            # a wrong IMU clock puts the state v dt behind or ahead of the fix: widen by it
+            dt2 = self.time_var()
+            Rp = Rp + dt2 * np.outer(v_then, v_then)
+            raw = est.history.raw_position(fix.t, kf.x, timeline.t_state)
+            if raw is not None:
+                share.observe(fix.t, z, (raw[0] + arm[0], raw[1] + arm[1], raw[2] + arm[2]),
+                              var[0], var[1], var[2])
+        g = kf.receiver_error(unit)
+        nu_p = [z[0] - p[0] - arm[0] - g[0], z[1] - p[1] - arm[1] - g[1], z[2] - p[2] - arm[2] - g[2]]
+        nu_v = None
+        yaw = None
+        course_var = 0.0
+        if vel is not None:
+            latency = s.gnss_vel_latency_s.get(unit, fix.vel_latency_s) if s.use_vel_latency else 0.0
+            then_v = self._state_at(fix.t - int(latency * 1e9))
+            if then_v is not None:
+                v, yaw = then_v[1], then_v[2]
+                self.speed, self.speed_t = math.hypot(vel[0], vel[1]), fix.t
+                nu_v = [vel[0] - v[0], vel[1] - v[1], vel[2] - v[2]]
+                if imu_mode:
+                    self.timing.course(fix.t - int(latency * 1e9), vel[0], vel[1],
+                                       float(velR[0, 0] + velR[1, 1]) * 0.5)
+                    dt2 = self.time_var()
+                    velR = velR + dt2 * np.outer(accel, accel)
+                    course_var = dt2 * att.rate[2] ** 2
+        pseudo = None
+        if imu_mode:
+            pseudo = est.constraints.rows(kf, att, est.heading, est.standstill.still, est.tilt_var()[1])
+        if pseudo is not None:
+            est.constraints.last_t = timeline.t_state
+        pos_ok, vel_ok, dx = kf.update_fix(nu_p, Rp, nu_v, velR, pseudo, s.gate_chi2, unit)
+        if dx is not None:
+            est.corrected(dx)
+        if pos_ok:
+            counters.gnss_used += 1
+        else:
+            counters.gnss("innovation")
+        if nu_v is not None and not vel_ok:
+            counters.gnss("velocity_innovation")
+        if pos_ok and (vel_ok or nu_v is None):
+            self.reject_since = None
+        elif self._disagreement(fix, z, Rp, arm, vel, velR, wander):
+            return
+        if vel_ok:
+            self.vel_refused[unit] = 0
+            est.heading.course(vel, velR, yaw, est.history, course_var)
+        elif nu_v is not None:
+            # a velocity refused again and again may be right and the yaw wrong: let the
+            # heading filter judge its course, as uncertain as the disagreement is large
+            n = self.vel_refused[unit] = self.vel_refused.get(unit, 0) + 1
+            speed2 = vel[0] * vel[0] + vel[1] * vel[1]
+            if n >= COURSE_AFTER_REFUSALS and speed2 > 0.0:
+                course_var += (nu_v[0] * nu_v[0] + nu_v[1] * nu_v[1]) / speed2
+                est.heading.course(vel, velR, yaw, est.history, course_var)
+        elif vel is None:
+            self._course_from_positions(fix, z, arm, Rp, course_var)
+
+    def _course_from_positions(self, fix, z, arm, Rp, extra_var: float) -> None:
+        """A receiver without velocity: the course of the body origin between this fix and
+        one at least POSITION_COURSE_MIN_S older (the chord of an arc is parallel to its
+        tangent halfway), compared with the yaw halfway."""
+        unit = fix.unit
+        here = (fix.t, z[0] - arm[0], z[1] - arm[1])
+        anchor = self.positions.get(unit)
+        if anchor is None or fix.t - anchor[0] > POSITION_COURSE_MAX_S * 1e9:
+            self.positions[unit] = here
+            return
+        dt = (fix.t - anchor[0]) * 1e-9
+        if dt < POSITION_COURSE_MIN_S:
+            return
+        self.positions[unit] = here
+        mid = self._state_at(fix.t - int(0.5 * dt * 1e9))
+        if mid is None:
+            return
+        vel = ((here[1] - anchor[1]) / dt, (here[2] - anchor[2]) / dt)
+        cov = 2.0 * Rp[:2, :2] / (dt * dt)          # the white parts of both fixes
+        self.est.heading.course(vel, cov, mid[2], self.est.history, extra_var)
+
+    def _disagreement(self, fix, z, Rp, arm, vel, velR, wander) -> bool:
+        """Usable fixes keep failing the innovation test: after gnss_reset_s, believe GNSS.
+        True if it did (position, velocity and yaw start again from this fix).
+
+        A single wild fix is the receiver's fault; seconds of them are ours (a wrong
+        velocity, a drift while coasting, a yaw gone wrong) or a jump the receiver really made.
+        """
+        if self.reject_since is None:
+            self.reject_since = fix.t
+            return False
+        limit = self.settings.gnss_reset_s
+        if (fix.t - self.reject_since) * 1e-9 <= limit:
+            return False
+        est = self.est
+        why = f"GNSS disagreed for {limit:g} s: position, velocity and yaw reinitialised"
+        est.counters.reset(why)
+        est.log.warning("%s", why)
+        est.kf.reset()
+        est.history.clear()
+        est.heading.forget()
+        self.reject_since = None
+        self.vel_refused.clear()
+        for share in self.white.values():
+            share.forget()
+        if any(arm):                        # the yaw is forgotten, and the arm's direction with it
+            lever = self.levers.get(fix.unit, self.lever_default)
+            Rp = Rp + np.eye(3) * (lever[0] ** 2 + lever[1] ** 2 + lever[2] ** 2)
+            arm = (0.0, 0.0, 0.0)
+        self._initialize(fix, z, Rp, arm, vel, velR, wander)
+        return True
+
+    def _initialize(self, fix, z, Rp, arm, vel, velR, wander) -> None:
+        """First usable fix: position (and velocity) straight from GNSS; the receiver's
+        wandering error (sigmas `wander`) is in the position's error."""
+        est = self.est
+        if vel is None:
+            vel, velR = (0.0, 0.0, 0.0), np.eye(3) * 25.0       # unknown: a car is below 5 m/s
+        t_state = est.timeline.t_state
+        dt = 0.0 if t_state is None else max(0.0, (t_state - fix.t) * 1e-9)
+        pos = [z[k] - arm[k] + vel[k] * dt for k in range(3)]
+        kf = est.kf
+        kf.reset()
+        kf.receiver(fix.unit, wander)
+        kf.initialize(pos, Rp, vel, velR, fix.unit)
+        self.arm_known = any(arm) or not any(self.levers.get(fix.unit, self.lever_default))
+        est.timeline.catch_up(fix.t)
+        est.history.clear()
+        est.counters.gnss_used += 1
+        est.log.info("position initialised from %s: ENU %.2f %.2f %.2f", fix.unit, *pos)
+        est.heading.course(vel, velR, est.attitude.yaw, est.history)
+
+    def _coast_to(self, t: int) -> None:
+        """No IMU: move the state to the fix's time with the constant-velocity model."""
+        est = self.est
+        dt = est.timeline.coast_to(t)
+        if dt <= 0.0:
+            return
+        if est.kf.initialized:
+            est.kf.move(0.0, 0.0, 0.0, dt)
+        if est.heading.filter.valid:
+            est.heading.filter.coast(dt)
+        est.history.clear()
+        for share in self.white.values():
+            share.forget()
+
+    def _state_at(self, t: int):
+        """(p, v, yaw) at time t: now, or from the history for a late fix."""
+        est = self.est
+        x = est.kf.x
+        yaw_now = est.attitude.yaw
+        t_state = est.timeline.t_state
+        if t_state is None or t >= t_state:
+            return x[0:3], x[3:6], yaw_now
+        then = est.history.at(t)
+        if then is not None:
+            return then
+        dt = (t_state - t) * 1e-9
+        if dt <= self.settings.late_window_s:
+            # older than the history: just after (re)initialisation. Extrapolate back.
+            return [x[k] - x[3 + k] * dt for k in range(3)], x[3:6], yaw_now
+        return None

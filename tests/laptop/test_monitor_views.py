@@ -1,0 +1,84 @@
+"""Each schema module says how the monitor shows its samples (`monitor_view`); the monitor
+lays out what it is given and reads no field of any sample itself."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings, strategies as st
+
+import viena.monitor
+from viena.common.display import Alert
+from viena.common.health import HEALTH, Health, HealthReport
+from viena.common.health import monitor_view as health_view
+from viena.services.estimator import Estimator
+from viena.services.estimator.state import STATE as ESTIMATOR_STATE
+from viena.services.estimator.state import monitor_view as estimator_view
+from viena.services.gnss.model.fix import FIX
+from viena.services.gnss.model.fix import monitor_view as gnss_view
+from viena.services.imu.model.sample import SAMPLE
+from viena.services.imu.model.sample import monitor_view as imu_view
+from viena.services.sim.model.car import SimCar
+from viena.services.sim.model.truth import TRUTH, truth_sample
+from viena.services.sim.model.truth import monitor_view as truth_view
+from viena.services.steering.model.state import STATE as STEERING_STATE
+from viena.services.steering.model.state import monitor_view as steering_view
+
+VIEWS = [(FIX, gnss_view), (SAMPLE, imu_view), (STEERING_STATE, steering_view),
+         (ESTIMATOR_STATE, estimator_view), (TRUTH, truth_view), (HEALTH, health_view)]
+
+
+def test_the_simulated_cars_truth_and_a_fresh_estimate_read_as_numbers():
+    car = SimCar()
+    for _ in range(200):
+        truth = car.step(0.01)
+    cells = truth_view(TRUTH.decode(TRUTH.encode(truth_sample(truth))))
+    assert list(cells) == ["position ENU m", "speed", "yaw", "wheel"]
+    assert cells["speed"].endswith(" m/s") and cells["yaw"].endswith("°") and "-" not in cells.values()
+    state = estimator_view(Estimator({"origin": [38.7369, -9.1395, 100.0]}).state())
+    assert state["mode"] == "waiting" and state["heading"] == "none (not valid)"
+    assert state["σ pos"].endswith(" m") and "waypoint" not in state
+
+
+def test_errors_in_a_health_report_ask_to_be_noticed():
+    health = Health("gnss", "gnss0")
+    health.count("reconnects", 2)
+    quiet = health_view(health.snapshot(), age_s=0.5)
+    assert quiet["errors"] == "-" and not isinstance(quiet["errors"], Alert) and quiet["reconnects"] == "2"
+    health.error("silences")
+    loud = health_view(health.snapshot())
+    assert loud["errors"] == "silences 1" and isinstance(loud["errors"], Alert)
+    assert list(loud) == list(HealthReport().cells())            # the monitor's columns
+
+
+def anything():
+    scalars = st.one_of(st.none(), st.booleans(), st.integers(-2**64, 2**64), st.text(max_size=5),
+                        st.floats(allow_nan=True, allow_infinity=True))
+    return st.recursive(scalars, lambda inner: st.lists(inner, max_size=4)
+                        | st.dictionaries(st.text(max_size=3), inner, max_size=3), max_leaves=8)
+
+
+@pytest.mark.parametrize("schema, view", VIEWS, ids=[s.name for s, _ in VIEWS])
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_a_view_shows_any_map_as_text_and_never_raises(schema, view, data):
+    """Whatever came on the key: any of the schema's fields with any value, and others."""
+    sample = data.draw(st.dictionaries(st.sampled_from([*schema.fields, "other"]), anything(), max_size=12))
+    cells = view(sample)
+    assert isinstance(cells, dict) and all(isinstance(k, str) and isinstance(v, str) for k, v in cells.items())
+
+
+def test_the_monitor_reads_no_field_of_any_sample():
+    """No `x["name"]` nor `x.get("name")` with a field of a schema it shows: those belong to
+    the schema modules' views."""
+    tree = ast.parse(Path(viena.monitor.__file__).read_text())
+    fields = {name for schema, _ in VIEWS for name in schema.fields} - {"t", "seq"}
+    read = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Subscript) and isinstance(node.slice, ast.Constant):
+            read.add(node.slice.value)
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "get"
+              and node.args and isinstance(node.args[0], ast.Constant)):
+            read.add(node.args[0].value)
+    assert read & fields == set()
