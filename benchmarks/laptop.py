@@ -41,7 +41,7 @@ STREAMS = [
     ("gnss/gnss1/fix", 20.0, "fix", "viena.gnss.fix/1"),
     ("imu/razor0/sample", 82.5, "imu", "viena.imu.sample/1"),
     ("steering/state", 50.0, "steering", "viena.steering.state/1"),
-    ("estimator/state", 82.5, "estimator", "viena.estimator.state/1"),
+    ("estimator/state", 82.5, "estimator", "viena.estimator.state/2"),
 ] + [(f"{service}/health", 1.0, "health", "viena.health/1")
      for service in ("sim", "gnss/gnss0", "gnss/gnss1", "imu/razor0", "steering", "estimator")]
 CAR_RATE_HZ = sum(rate for _, rate, _, _ in STREAMS)
@@ -73,6 +73,9 @@ def _samples(kind: str) -> dict:
                       "heading_source": "mag+course", "position_valid": True, "imu_live": True,
                       "gnss_live": ["gnss0", "gnss1"], "origin": truth["origin"],
                       "origin_source": "config", "enu_m": truth["enu_m"], "enu_var_m2": [0.1] * 3,
+                      "enu_cov_m2": [0.1, 0.01, 0.0, 0.1, 0.0, 0.2], "enu_sigma_m": [0.32] * 3,
+                      "sigma_h_m": 0.33, "sigma_v_m": 0.45, "standstill": False,
+                      "imu_time_offset_hint_s": None,
                       "lat_deg": truth["lat_deg"], "lon_deg": truth["lon_deg"],
                       "height_m": truth["height_m"], "vel_enu_mps": v3, "vel_var_m2ps2": [0.01] * 3,
                       "speed_mps": 4.0, "quat": truth["quat"], "yaw_rad": 0.5, "pitch_rad": 0.0,

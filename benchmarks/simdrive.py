@@ -16,7 +16,7 @@ sensor turns its truth into a sample dict in the agreed schema. Two sets of sens
 What the estimator's benchmark also needs, each off by default: a steady speed on a road
 that suits it (`at_speed`: the campus loop up to 6 m/s, an open oval beyond), hills
 (`grade_pct`), outages on a schedule (`periodic_outages`), IMU stamps off the GNSS clock
-(`imu_time_offset_s`), a residual accelerometer bias, a position-only receiver
+(`imu_stamps_late_s`), a residual accelerometer bias, a position-only receiver
 (`gnss_velocity=False`, as NMEA GGA), sigmas sent as ENU or horizontal/vertical instead of
 ECEF (`sigma_form`), and a second receiver under the same sky (`second_antenna_m`).
 """
@@ -55,7 +55,7 @@ class Drive:
     route: str = "campus"               # "campus" (the 40 m x 24 m loop) or "open" (ROUTES)
     grade_pct: float = 0.0              # hills: the road's grade swings +- this much ...
     grade_period_m: float = 300.0       # ... over this distance driven
-    imu_time_offset_s: float = 0.0      # IMU stamps = true time + this (a late adapter: > 0)
+    imu_stamps_late_s: float = 0.0      # IMU stamps = true time + this (a late adapter: > 0)
     accel_bias_mps2: tuple | None = None   # body axes; None: the sensor set's own
     gnss_velocity: bool = True          # False: a position-only receiver (NMEA GGA)
     sigma_form: str = "ecef"            # sigmas as "ecef" (ecef_sigma_m), "enu" or "hv"
@@ -119,7 +119,7 @@ class DriveSamples:
         d = self.drive
         imu_dt = 1.0 / d.imu_rate_hz
         gnss_ns = int(round(1e9 / d.gnss_rate_hz))
-        offset_ns = int(round(d.imu_time_offset_s * 1e9))
+        offset_ns = int(round(d.imu_stamps_late_s * 1e9))
         recent: deque[Truth] = deque([self.car.truth()], maxlen=64)
         n_imu = n_gnss = 0
         while True:

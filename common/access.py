@@ -12,7 +12,8 @@ What each word means to the router, for the client holding the role:
 - serve K        it may answer queries on K (declare a queryable, receive queries, reply)
 - command K      it may query K and receive the replies
 - receive K      it may subscribe to puts on K (a service taking commands as puts)
-- token K        it may hold a liveliness token on K
+- token K        it may hold a liveliness token on K, and ask whether K is taken already
+                 (a process refuses to start as a second gnss0: common/service.py)
 
 Replies travel on the query's key expression, so a role that asks `steering/arm` needs
 the replies on `steering/arm`; a wildcard query (`viena/**`) matches no narrower rule
@@ -96,6 +97,8 @@ class _Policy:
         self.allow(ids, f"{r}/receive", ["declare_subscriber"], "ingress", role.receive, name)
         self.allow(ids, f"{r}/receive-data", ["put"], "egress", role.receive, name)
         self.allow(ids, f"{r}/token", ["liveliness_token"], "ingress", role.token, name)
+        self.allow(ids, f"{r}/token-query", ["liveliness_query"], "ingress", role.token, name)
+        self.allow(ids, f"{r}/token-replies", ["reply"], "egress", role.token, name)
         if role.liveliness:
             self.allow(ids, f"{r}/liveliness", ["declare_liveliness_subscriber", "liveliness_query"],
                        "ingress", ("alive/**",), name)

@@ -3,6 +3,10 @@
 The `zenoh` CLI sends no encoding with `put`/`get`, so the bytes themselves decide:
 a msgpack map starts with 0x80-0x8f, 0xde or 0xdf, while JSON text starts with `{`.
 A reply goes back in the encoding the question came in.
+
+Whatever arrives is bounded before it is parsed: a command is small (`MAX_COMMAND_BYTES`)
+and shallow (`MAX_DEPTH` levels of maps and lists), so a 64 MB or 1000-deep payload costs
+a length check and a scan, never the memory or the recursion it asks for.
 """
 from __future__ import annotations
 
@@ -16,6 +20,9 @@ from viena.common.errors import PayloadError
 from viena.common.schema import MSGPACK, SampleError, unpack
 
 JSON = "application/json"
+#: a command is a small map: a few fields, a lease, an angle
+MAX_COMMAND_BYTES = 4096
+MAX_DEPTH = 8
 
 
 def is_json_text(data: bytes, encoding: str | None = None) -> bool:
@@ -28,12 +35,17 @@ def is_json_text(data: bytes, encoding: str | None = None) -> bool:
     return head[:1] in (b"{", b"[")
 
 
-def parse_payload(data: bytes | bytearray | memoryview, encoding: str | None = None) -> dict:
+def parse_payload(data: bytes | bytearray | memoryview, encoding: str | None = None, *,
+                  max_bytes: int = MAX_COMMAND_BYTES, max_depth: int = MAX_DEPTH) -> dict:
     """A map from JSON text or msgpack; PayloadError saying what is wrong otherwise."""
+    if len(data) > max_bytes:
+        raise PayloadError(f"payload of {len(data)} bytes: at most {max_bytes} are read")
     data = bytes(data)
     if not data:
         raise PayloadError("empty payload: expected a map such as {\"angle_deg\": 1.0}")
     if is_json_text(data, encoding):
+        if _json_depth(data) > max_depth:
+            raise PayloadError(f"nested deeper than {max_depth} levels")
         try:
             value = json.loads(data.decode("utf-8"), parse_constant=_reject_constant)
         except (UnicodeDecodeError, ValueError) as exc:
@@ -45,7 +57,49 @@ def parse_payload(data: bytes | bytearray | memoryview, encoding: str | None = N
             raise PayloadError(f"neither JSON text nor msgpack: {exc}") from None
     if not isinstance(value, dict):
         raise PayloadError(f"expected a map, got {type(value).__name__}")
+    if _depth(value, max_depth) > max_depth:
+        raise PayloadError(f"nested deeper than {max_depth} levels")
     return value
+
+
+def _json_depth(data: bytes) -> int:
+    """The deepest nesting of [ and { outside strings, found without parsing."""
+    depth = deepest = 0
+    in_string = escaped = False
+    for byte in data:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif byte == 0x5C:                         # backslash
+                escaped = True
+            elif byte == 0x22:                         # closing quote
+                in_string = False
+        elif byte == 0x22:
+            in_string = True
+        elif byte in (0x5B, 0x7B):
+            depth += 1
+            deepest = max(deepest, depth)
+        elif byte in (0x5D, 0x7D):
+            depth -= 1
+    return deepest
+
+
+def _depth(value: Any, limit: int) -> int:
+    """Nesting depth of maps and lists, counted without recursion (stops past `limit`)."""
+    deepest, stack = 0, [(value, 1)]
+    while stack:
+        item, level = stack.pop()
+        if isinstance(item, dict):
+            children = item.values()
+        elif isinstance(item, (list, tuple)):
+            children = item
+        else:
+            continue
+        deepest = max(deepest, level)
+        if deepest > limit:
+            return deepest
+        stack.extend((child, level + 1) for child in children)
+    return deepest
 
 
 def _reject_constant(name: str) -> float:

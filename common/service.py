@@ -4,12 +4,14 @@ A service subclasses `Service`, names itself, names its settings dataclass
 (common/settings.py), and fills in `start()` and `stop()`. Everything else is the same
 everywhere:
 
-- flags `--connect`, `--car`, `--config`, `--unit`, `--log-level`, `--help`, plus one per
-  setting (`--name-with-dashes`);
+- flags `--connect`, `--car`, `--config`, `--log-level`, `--version`, `--help`, `--unit`
+  where a service has units (gnss, imu), plus one per setting (`--name-with-dashes`);
 - settings: the dataclass's defaults, overlaid with the TOML file's `[<name>]` table, then
   its `[<name>.<unit>]` sub-table, then the flags; a bad file or setting stops the process
   at start with one line naming both;
-- a liveliness token (discovery only, design §3), a health sample once a second;
+- a liveliness token (discovery only, design §3), a health sample once a second; a token
+  already alive under the same name at start means the same unit runs elsewhere, and the
+  process refuses to be a second one, in one line;
 - SIGTERM/SIGINT: stop within 2 s, with every publisher, subscriber, queryable and the
   session closed (zenoh-python can hang at exit if any are left open).
 """
@@ -35,6 +37,8 @@ from viena.common.settings import add_flags, given_flags, load, specs
 
 STOP_DEADLINE_S = 2.0
 HEALTH_PERIOD_S = 1.0
+#: how long the router may take to say whether our liveliness token is taken already
+DUPLICATE_QUERY_S = 2.0
 
 
 class Publisher:
@@ -75,7 +79,8 @@ class Service:
     name = "service"
     #: the settings dataclass, declared with common/settings.py's `setting()`
     settings_class: type = NoSettings
-    #: units are optional (the router and the estimator have none)
+    #: the unit a process runs when not told (--unit); None: the service has no units
+    #: (one per car: sim, steering, estimator) and no --unit flag
     default_unit: str | None = None
     description = ""
 
@@ -127,6 +132,11 @@ class Service:
         self.session = open_session(self.zenoh_config, self.stopping)
         if self.session is None:
             return 0
+        other = self.running_elsewhere()
+        if other is not None:
+            print(f"viena-{self.name}: {other}", file=sys.stderr, flush=True)
+            self.session.close()
+            return 2
         self.log.info("started: car %s, unit %s, zenoh id %s", self.keys.car, self.unit,
                       self.session.zid())
         try:
@@ -138,6 +148,18 @@ class Service:
         finally:
             self._shutdown()
         return 0
+
+    def running_elsewhere(self) -> str | None:
+        """Why this process must not run, if the same unit already runs on this car (its
+        liveliness token is alive): two gnss0 would publish one key from two receivers."""
+        key = self.keys.alive(self.name, self.unit)
+        replies = self.session.liveliness().get(key, timeout=DUPLICATE_QUERY_S)
+        if not any(reply.ok is not None for reply in replies):
+            return None
+        who = self.unit or self.name
+        fix = ", or give this one another --unit" if self.default_unit is not None else ""
+        return (f"{who} already runs on car {self.keys.car} ({key} is alive): stop that one "
+                f"first{fix}")
 
     def _on_signal(self, signum, _frame) -> None:
         if self.stopping.is_set():
@@ -199,9 +221,10 @@ def build_parser(cls: type[Service]) -> argparse.ArgumentParser:
         prog=f"viena-{cls.name}", description=cls.description or (cls.__doc__ or "").strip(),
         formatter_class=argparse.RawDescriptionHelpFormatter)
     add_common_arguments(parser)
-    parser.add_argument("--unit", metavar="NAME", default=None,
-                        help=f"which unit this process runs (default {cls.default_unit}); "
-                             f"its settings come from the [{cls.name}.NAME] table")
+    if cls.default_unit is not None:
+        parser.add_argument("--unit", metavar="NAME", default=None,
+                            help=f"which unit this process runs (default {cls.default_unit}); "
+                                 f"its settings come from the [{cls.name}.NAME] table")
     add_flags(parser, cls.settings_class, f"settings (the [{cls.name}] table of --config; a flag wins)")
     cls.add_arguments(parser)
     return parser

@@ -1,13 +1,21 @@
 """`viena`: run the car, watch it, and measure it.
 
     viena up [--profile sim] [-d]     start a profile under supervisor (Ctrl-C stops it)
-    viena status | logs NAME | down   look after a running profile
-    viena update                      apply edits of a running profile (a moved program)
-    viena sub [KEYEXPR]               print samples, one per line
+    viena status | down | update      look after a running profile
+    viena logs | restart | stop | start NAME     one program of it
+    viena doctor [--profile pi]       is this machine ready to run the profile?
+    viena service install --profile pi    start the profile at boot (systemd)
+    viena list | hz KEY | sub KEY     what the car publishes, how fast, and what
+    viena monitor | record | replay   watch, record and play back the car
+    viena info | export | plot FILE   look into a recording
+    viena keys ...                    the car's certificates
     viena router                      a zenoh router (for machines without zenohd)
-    viena bench [NAME ...]            print the benchmark figures
-    viena calibrate imu ...           fit IMU calibrations from recordings
     viena settings [SERVICE]          every setting of a service: type, default, meaning
+    viena calibrate imu ...           fit IMU calibrations from recordings
+    viena bench [NAME ...]            print the benchmark figures (source checkout only)
+
+Every command takes --help and --version. A tool is a module with `build_parser(parser)`
+and `run(args)`, named in TOOLS; adding one is one line there.
 """
 from __future__ import annotations
 
@@ -15,19 +23,35 @@ import argparse
 import importlib
 import sys
 
-from viena import compose, router, sub
+from viena import compose
+from viena.common.session import add_version_flag
 
 BENCHES = ["sim", "gnss", "imu", "steering", "estimator", "laptop", "security"]
 
-#: commands that live in their own module, each with build_parser(parser) and run(args)
+#: commands that live in their own module, each with build_parser(parser) and run(args);
+#: a module that is not there (a tool not written yet) is left out of the command list
 TOOLS = {
+    "doctor": ("viena.doctor", "check that this machine is ready to run a profile"),
+    "service": ("viena.boot", "start a profile at boot: a systemd unit"),
+    "list": ("viena.discover", "the keys the car publishes, with schema and rate"),
+    "hz": ("viena.hz", "rate, jitter and bandwidth of a key"),
+    "sub": ("viena.sub", "print samples of a key expression"),
     "monitor": ("viena.monitor", "live dashboard of every service"),
     "record": ("viena.record", "record samples into an MCAP file"),
     "replay": ("viena.replay", "publish a recording back into the dataflow"),
+    "info": ("viena.info", "what a recording holds: duration, keys, counts, rates"),
     "export": ("viena.export", "an MCAP recording as CSV or JSON"),
     "plot": ("viena.plot", "a recorded drive as a PNG"),
     "keys": ("viena.keys", "the car's certificates: init, issue, list, zenoh-config"),
+    "router": ("viena.router", "run a zenoh router"),
     "settings": ("viena.settings", "every setting of a service: type, default, meaning"),
+}
+#: one program of a profile: `viena ACTION NAME`
+PROGRAM_ACTIONS = {
+    "logs": "a program's log (-f: follow it)",
+    "restart": "stop and start one program, and check that it stays up",
+    "stop": "stop one program (the rest keeps running)",
+    "start": "start a stopped program, and check that it stays up",
 }
 CALIBRATIONS = {"imu": "viena.services.imu.calibration_cli"}
 
@@ -48,14 +72,12 @@ def _running_profile(args) -> str:
     raise compose.ComposeError(f"several profiles are up ({', '.join(running)}): say --profile")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="viena", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    cmds = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
+def _add_profile_commands(cmds) -> None:
     p = cmds.add_parser("up", help="start a profile under supervisor")
     _profile_arg(p)
-    p.add_argument("-d", "--detach", action="store_true", help="run in the background")
+    p.add_argument("-d", "--detach", action="store_true",
+                   help="run in the background; return once every program has stayed up (exit "
+                        "status 1, with their logs' last lines, if any did not)")
     p.add_argument("--free-ports", action="store_true",
                    help="pick free ports for the profile's VIENA_*_PORT variables")
     p.add_argument("--secure", action="store_true",
@@ -81,19 +103,22 @@ def build_parser() -> argparse.ArgumentParser:
     _profile_arg(p, None)
     p.set_defaults(func=lambda a: compose.status(_running_profile(a)))
 
-    p = cmds.add_parser("logs", help="a program's log")
-    p.add_argument("program", help="program name in the profile (router, sim, gnss0, ...)")
-    p.add_argument("-f", "--follow", action="store_true")
-    _profile_arg(p, None)
-    p.set_defaults(func=lambda a: compose.logs(_running_profile(a), a.program, a.follow))
+    for action, help_text in PROGRAM_ACTIONS.items():
+        p = cmds.add_parser(action, help=help_text)
+        p.add_argument("program", metavar="NAME", help="program name in the profile (router, sim, gnss0, ...)")
+        if action == "logs":
+            p.add_argument("-f", "--follow", action="store_true", help="keep printing what it writes")
+        _profile_arg(p, None)
+        p.set_defaults(func=lambda a, action=action: compose.one_program(
+            action, _running_profile(a), a.program, getattr(a, "follow", False)))
 
-    p = cmds.add_parser("sub", help="print samples of a key expression")
-    sub.build_parser(p)
-    p.set_defaults(func=sub.run)
 
-    p = cmds.add_parser("router", help="run a zenoh router")
-    router.build_parser(p)
-    p.set_defaults(func=router.run)
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="viena", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_version_flag(parser)
+    cmds = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_profile_commands(cmds)
 
     for name, (module_name, help_text) in TOOLS.items():
         try:
@@ -115,6 +140,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("device", choices=sorted(CALIBRATIONS))
     p.add_argument("rest", nargs=argparse.REMAINDER, help="the calibration's own arguments")
     p.set_defaults(func=lambda a: importlib.import_module(CALIBRATIONS[a.device]).main(a.rest))
+
+    for sub in cmds.choices.values():               # --version on every command
+        if "--version" not in sub._option_string_actions:
+            add_version_flag(sub)
     return parser
 
 

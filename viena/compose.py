@@ -5,7 +5,11 @@ read (`compose/<profile>.toml`, passed as VIENA_SETTINGS). Programs are defined 
 `compose/programs/*.ini`, and a profile includes those it runs. Profiles use environment variables for what differs
 between runs: VIENA_RUN (the run directory: socket, pid, logs), VIENA_PYTHON, and ports
 named VIENA_*_PORT. `up` fixes them once and writes them to `<run>/env.json`, so the
-later commands (and supervisorctl, which re-reads the same file) see the same values.
+later commands (and supervisorctl, which re-reads the same file) see the same values,
+and so does every tool that connects without --connect: env.json also holds where a
+client of the profile connects (VIENA_CONNECT) and the variables its settings named.
+One program at a time (logs, restart, stop, start, and whether it is really up):
+viena/programs.py.
 """
 from __future__ import annotations
 
@@ -19,20 +23,22 @@ import sys
 import time
 from pathlib import Path
 
+from viena import programs
+from viena.common.config import load_toml
+from viena.common.errors import ConfigError
 from viena.paths import compose_dir
 from viena.profile_security import SecurityRefusal, secure_environment
+from viena.runstate import (profiles, read_environment, run_dir, running_profiles,  # noqa: F401
+                            state_root, supervisord_pid)
 
 DEFAULT_PROFILE = "sim"
 _PORT_VAR = re.compile(r"(?:%\(ENV_|\$\{)(VIENA_[A-Z0-9_]*PORT)(?:\)s|:-(\d+)\}|\})")
 _LINK_DEFAULT = re.compile(r"\$\{VIENA_LINK:-(tls|tcp)\}")
+_SETTINGS_VAR = re.compile(r"\$\{([A-Z][A-Z0-9_]*)")
 
 
 class ComposeError(Exception):
     """Something a person can fix: said in one line."""
-
-
-def profiles() -> list[str]:
-    return sorted(p.stem for p in compose_dir().glob("*.conf"))
 
 
 def profile_file(profile: str) -> Path:
@@ -40,15 +46,6 @@ def profile_file(profile: str) -> Path:
     if not path.exists():
         raise ComposeError(f"no profile '{profile}' (have: {', '.join(profiles())})")
     return path
-
-
-def state_root() -> Path:
-    base = os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state"
-    return Path(base) / "viena"
-
-
-def run_dir(profile: str) -> Path:
-    return Path(os.environ.get("VIENA_RUN") or state_root() / profile)
 
 
 def port_variables(profile: str) -> dict[str, int | None]:
@@ -84,6 +81,9 @@ def environment(profile: str, free_ports: bool = False) -> dict[str, str]:
         "VIENA_SETTINGS": str(compose_dir() / f"{profile}.toml"),
         "VIENA_LINK": os.environ.get("VIENA_LINK") or link_default(profile),
     }
+    settings = compose_dir() / f"{profile}.toml"
+    named = _SETTINGS_VAR.findall(settings.read_text()) if settings.exists() else []
+    env.update({name: os.environ[name] for name in named if name in os.environ and name not in env})
     for name, default in port_variables(profile).items():
         if name in os.environ:
             env[name] = os.environ[name]
@@ -95,33 +95,29 @@ def environment(profile: str, free_ports: bool = False) -> dict[str, str]:
 
 
 def saved_environment(profile: str) -> dict[str, str]:
-    path = run_dir(profile) / "env.json"
-    if not path.exists():
-        raise ComposeError(f"profile '{profile}' is not up (no {path})")
-    return json.loads(path.read_text())
+    env = read_environment(profile)
+    if env is None:
+        raise ComposeError(f"profile '{profile}' is not up (no {run_dir(profile) / 'env.json'})")
+    return env
+
+
+def client_connect(env: dict[str, str]) -> str | None:
+    """Where a client of the profile connects (its settings' [zenoh] connect), as this
+    run's variables make it; comma-separated if several."""
+    try:
+        table = load_toml(env["VIENA_SETTINGS"]).get("zenoh", {})
+    except ConfigError:
+        return None
+    connect = table.get("connect") if isinstance(table, dict) else None
+    if isinstance(connect, str):
+        connect = [connect]
+    return ",".join(connect) if isinstance(connect, list) and connect else None
 
 
 def _supervisor_env(env: dict[str, str]) -> dict[str, str]:
     full = dict(os.environ)
     full.update(env)
     return full
-
-
-def supervisord_pid(profile: str) -> int | None:
-    """The pid of the profile's running supervisord, if it runs."""
-    run = run_dir(profile)
-    try:
-        if json.loads((run / "env.json").read_text()).get("VIENA_PROFILE") != profile:
-            return None                         # VIENA_RUN shared by several profiles
-    except (OSError, ValueError):
-        return None
-    pidfile = run / "supervisord.pid"
-    try:
-        pid = int(pidfile.read_text().strip())
-        os.kill(pid, 0)
-        return pid
-    except (OSError, ValueError):
-        return None
 
 
 def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = False,
@@ -136,22 +132,45 @@ def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = 
         raise ComposeError(f"profile {profile}: {exc}") from None
     run = Path(env["VIENA_RUN"])
     run.mkdir(parents=True, exist_ok=True)
+    os.environ.update(env)                      # what supervisord and its programs will see
+    connect = client_connect(env)
+    if connect:
+        env["VIENA_CONNECT"] = connect
     (run / "env.json").write_text(json.dumps(env, indent=1))
     cmd = [sys.executable, "-m", "supervisor.supervisord", "-c", str(conf)]
     ports = ", ".join(f"{k}={v}" for k, v in env.items() if k.endswith("_PORT"))
     print(f"viena: profile {profile} up ({ports}; {_security_words(env)}); logs in {run}",
           file=sys.stderr, flush=True)
     if detach:
+        started = time.monotonic()
         subprocess.run(cmd, env=_supervisor_env(env), check=True)
-        return wait_running(profile)
+        status = wait_running(profile)
+        if status == 0:
+            print(f"viena: every program of {profile} is up ({time.monotonic() - started:.1f} s); "
+                  f"`viena status`, `viena logs NAME`, `viena down`", file=sys.stderr)
+        return status
+    return _foreground(cmd, env)
+
+
+def _foreground(cmd: list[str], env: dict[str, str]) -> int:
+    """supervisord in the foreground until it ends. Ctrl-C reaches it too (same process
+    group); SIGTERM (systemd stopping the unit) is handed on: either way it stops every
+    program in order, then itself, then us."""
     proc = subprocess.Popen(cmd + ["-n"], env=_supervisor_env(env))
-    # Ctrl-C reaches supervisord too (same process group): it stops every program, then us.
-    while True:
-        try:
-            return proc.wait()
-        except KeyboardInterrupt:
-            print("viena: stopping (Ctrl-C)", file=sys.stderr, flush=True)
-            proc.send_signal(signal.SIGINT)
+
+    def on_term(signum, _frame) -> None:
+        print("viena: stopping (SIGTERM)", file=sys.stderr, flush=True)
+        proc.send_signal(signal.SIGTERM)
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        while True:
+            try:
+                return proc.wait()
+            except KeyboardInterrupt:
+                print("viena: stopping (Ctrl-C)", file=sys.stderr, flush=True)
+                proc.send_signal(signal.SIGINT)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def _security_words(env: dict[str, str]) -> str:
@@ -171,26 +190,10 @@ def ctl(profile: str, *args: str, capture: bool = False) -> subprocess.Completed
                           capture_output=capture)
 
 
-def program_states(profile: str) -> dict[str, str]:
-    out = ctl(profile, "status", capture=True).stdout
-    return {line.split()[0]: line.split()[1] for line in out.splitlines() if len(line.split()) > 1}
-
-
-def wait_running(profile: str, timeout: float = 30.0) -> int:
-    """Like `docker compose up --wait`: return once every program is up (or has failed)."""
-    end = time.monotonic() + timeout
-    states: dict[str, str] = {}
-    while time.monotonic() < end:
-        states = program_states(profile)
-        if states and not any(s in ("STARTING", "BACKOFF") for s in states.values()):
-            break
-        time.sleep(0.2)
-    bad = {name: s for name, s in states.items() if s != "RUNNING"}
-    if bad:
-        print("viena: not running: " + ", ".join(f"{n} {s}" for n, s in bad.items())
-              + f" (see `viena logs NAME --profile {profile}`)", file=sys.stderr)
-        return 1
-    return 0
+def wait_running(profile: str, names: list[str] | None = None) -> int:
+    """Like `docker compose up --wait`, and honest: once every program (or those named)
+    has stayed up past its start, 0; else 1, having said which did not and why."""
+    return programs.report(profile, programs.wait_settled(profile, names))
 
 
 def status(profile: str) -> int:
@@ -200,14 +203,20 @@ def status(profile: str) -> int:
     return ctl(profile, "status").returncode
 
 
-def logs(profile: str, program: str, follow: bool = False) -> int:
-    if follow:
-        return ctl(profile, "tail", "-f", program).returncode
-    path = Path(saved_environment(profile)["VIENA_RUN"]) / f"{program}.log"
-    if not path.exists():
-        raise ComposeError(f"no log for '{program}' in {path.parent}")
-    sys.stdout.write(path.read_text()[-20000:])
-    return 0
+def one_program(action: str, profile: str, program: str, follow: bool = False) -> int:
+    """`viena logs|restart|stop|start NAME`: one program of a profile."""
+    conf = profile_file(profile)
+    if action == "logs":
+        saved_environment(profile)                  # says so if the profile never ran here
+    elif not supervisord_pid(profile):
+        raise ComposeError(f"profile '{profile}' is not up: `viena up --profile {profile}` first")
+    try:
+        if action == "logs":
+            return programs.logs(profile, conf, program, follow)
+        return {"restart": programs.restart, "stop": programs.stop,
+                "start": programs.start}[action](profile, conf, program)
+    except programs.ProgramError as exc:
+        raise ComposeError(str(exc)) from None
 
 
 def update(profile: str) -> int:
@@ -215,8 +224,10 @@ def update(profile: str) -> int:
     its files, starts what was added, stops what was removed, leaves the rest running."""
     if not supervisord_pid(profile):
         raise ComposeError(f"profile '{profile}' is not up")
+    before = set(programs.known_programs(profile, profile_file(profile)))
     done = ctl(profile, "update")
-    return done.returncode or wait_running(profile)
+    added = sorted(set(programs.known_programs(profile, profile_file(profile))) - before)
+    return done.returncode or (wait_running(profile, added) if added else 0)
 
 
 def down(profile: str, timeout: float = 15.0) -> int:
@@ -233,7 +244,3 @@ def down(profile: str, timeout: float = 15.0) -> int:
         raise ComposeError(f"supervisord (pid {pid}) did not stop in {timeout:.0f} s; sent SIGTERM")
     print(f"profile '{profile}' is down")
     return 0
-
-
-def running_profiles() -> list[str]:
-    return [p for p in profiles() if supervisord_pid(p)]

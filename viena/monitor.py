@@ -10,38 +10,48 @@ shown as current. A service heard only through its health, with no token (a repl
 drive), is shown as "no token". For one key, `viena sub` prints every sample.
 
 The dashboard is a plain data model (`MonitorModel`, fed with decoded samples) and a
-rich rendering of its `view()`; only the newest payload per key is decoded, once a frame.
-What a panel shows of a sample is up to the module that owns its schema (its
-`monitor_view`, made of the pieces in viena.common.display): the monitor only lays it out.
+rich rendering of its `view()` as tables that wrap rather than cut a value short at any
+width; only the newest payload per key is decoded, once a frame. What a panel shows of a
+sample is up to the module that owns its schema (its `monitor_view`, made of the pieces in
+viena.common.display): the monitor only lays it out, and colours what asks to be noticed:
+an Alert, and the words the car uses for trouble (NO FIX, tripped, fault, lost) in red,
+stale values in yellow. A service's error totals stay on screen but are red only while
+they grow: the column "errors/s" is their rate over the last RECENT_ERRORS_S. Until the
+router answers, the screen says which endpoint cannot be reached and why.
 """
 from __future__ import annotations
 
 import argparse
 import queue
+import re
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 from typing import Any
 
-from viena.common.display import Alert, fmt_age
+from viena.common.display import Alert, fmt_age, fmt_map
 from viena.common.errors import InputError
 from viena.common.health import HealthReport
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
-from viena.common.session import (stop_on_signals, add_common_arguments, car_name, load_settings_file,
-                                  open_session, zenoh_config)
+from viena.common.session import add_common_arguments, config_endpoints, stop_on_signals
 from viena.services.estimator.state import monitor_view as estimator_view
 from viena.services.gnss.model.fix import monitor_view as gnss_view
 from viena.services.imu.model.sample import monitor_view as imu_view
 from viena.services.sim.model.truth import monitor_view as truth_view
 from viena.services.steering.model.state import monitor_view as steering_view
+from viena.tool import Connection, Fail, add_timeout_flag, guarded
 
 DATA_STALE_S = 1.0
 HEALTH_STALE_S = 3.0            # health comes once a second: three missed is stale
 REFRESH_HZ = 4.0
 RATE_WINDOW_S = 1.0
 POLL_S = 0.02                   # how often arrivals are taken (and so stamped)
+RECENT_ERRORS_S = 10.0          # errors/s is measured over this much of the latest health
+#: words a view uses for trouble: shown in red wherever they stand alone in a cell
+ALARM_WORDS = re.compile(r"\b(NO FIX|tripped|FAULT|fault|lost)\b")
 
 
 # -- the data model ---------------------------------------------------------------------------
@@ -64,6 +74,8 @@ class ServiceState:
     token: bool | None = None       # None: never seen a token
     token_changed: float | None = None
     health: Latest | None = None
+    #: (received, error totals) of its recent health samples, oldest first
+    errors_seen: deque = field(default_factory=deque)
 
 
 @dataclass
@@ -85,6 +97,7 @@ class ServiceView:
     status_age_s: float | None      # since the token came or went
     health: Aged | None
     report: HealthReport | None = None      # what its health says, as of now
+    error_rates: dict[str, float] = field(default_factory=dict)    # errors/s, recently
 
 
 @dataclass
@@ -153,7 +166,11 @@ class MonitorModel:
             latest.rate_hz = (latest.count - n_mark) / (now - t_mark)
             latest.rate_mark = (now, latest.count)
         if parts[-1] == "health" and len(parts) >= 2:
-            self._service("/".join(parts[:-1])).health = latest
+            service = self._service("/".join(parts[:-1]))
+            service.health = latest
+            service.errors_seen.append((now, HealthReport.of(value).errors))
+            while len(service.errors_seen) > 2 and now - service.errors_seen[1][0] >= RECENT_ERRORS_S:
+                service.errors_seen.popleft()
 
     def bad_sample(self, key: str, why: str) -> None:
         self.bad[key] = why
@@ -199,125 +216,151 @@ class MonitorModel:
         since = None if s.token_changed is None else now - s.token_changed
         health = self._aged(s.health, now, self.health_stale_s)
         report = None if health is None else HealthReport.of(health.value, health.age_s)
-        return ServiceView(s.name, status, since, health, report)
+        return ServiceView(s.name, status, since, health, report, error_rates(s.errors_seen))
+
+
+def error_rates(seen) -> dict[str, float]:
+    """Errors per second between the oldest and the newest of (time, totals), for the
+    errors that grew; a total that fell (the service restarted) counts from zero."""
+    if len(seen) < 2:
+        return {}
+    (t0, first), (t1, last) = seen[0], seen[-1]
+    if t1 <= t0:
+        return {}
+    rates = {}
+    for name, total in last.items():
+        grown = total - first.get(name, 0.0)
+        grown = total if grown < 0 else grown
+        if grown > 0:
+            rates[name] = grown / (t1 - t0)
+    return rates
 
 
 # -- rendering -------------------------------------------------------------------------------
-class Grid:
-    """A titled table drawn as aligned text.
+def _table(title: str, *headers: str, show_header: bool = True):
+    """A titled table whose cells wrap (never cut) when the screen is narrow."""
+    from rich import box
+    from rich.table import Table
 
-    rich's Table measures and wraps every cell on every frame, which costs more CPU than
-    the rest of the monitor together; values here are short, so columns just align.
-    """
-
-    def __init__(self, title: str, *headers: str):
-        self.title, self.headers = title, headers
-        self.rows: list[list[tuple[str, str]]] = []
-
-    def add(self, *cells) -> None:
-        """Cells are text, or (text, rich style)."""
-        self.rows.append([c if isinstance(c, tuple) else (str(c), "") for c in cells])
-
-    def text(self):
-        from rich.text import Text
-
-        widths = [max([len(h), *(len(row[i][0]) for row in self.rows if i < len(row))])
-                  for i, h in enumerate(self.headers)]
-        out = Text(no_wrap=True, overflow="ellipsis", end="")
-        out.append(f"\n{self.title}\n", style="bold")
-        if any(self.headers):
-            out.append("  ".join(h.ljust(w) for h, w in zip(self.headers, widths)).rstrip() + "\n",
-                       style="underline")
-        for row in self.rows:
-            for i, ((cell, style), width) in enumerate(zip(row, widths)):
-                out.append(cell.ljust(width) if i < len(widths) - 1 else cell, style=style)
-                if i < len(widths) - 1:
-                    out.append("  ")
-            out.append("\n")
-        return out
+    table = Table(title=title, title_justify="left", title_style="bold", box=box.SIMPLE_HEAD,
+                  show_header=show_header, show_edge=False, pad_edge=False, padding=(0, 1),
+                  header_style="underline")
+    for header in headers:
+        table.add_column(header, overflow="fold")
+    return table
 
 
-def _age_cell(aged: Aged | None) -> tuple[str, str]:
+def _cell(text: str, style: str = "", name: str = ""):
+    """A cell of a view: an Alert, or a word of trouble (alone, or as the cell's name with
+    a value), is red whatever the row's style."""
+    from rich.text import Text
+
+    if isinstance(text, Alert) or ALARM_WORDS.search(text) or (
+            name and ALARM_WORDS.fullmatch(name) and text not in ("-", "", "ok", "no")):
+        style = "bold red"
+    return Text(text, style=style)
+
+
+def _age_cell(aged: Aged | None):
+    from rich.text import Text
+
     if aged is None:
-        return "-", "dim"
+        return Text("-", style="dim")
     if aged.stale:
-        return f"STALE {fmt_age(aged.age_s)}", "bold yellow"
-    return fmt_age(aged.age_s), "green"
+        return Text(f"STALE {fmt_age(aged.age_s)}", style="bold yellow")
+    return Text(fmt_age(aged.age_s), style="green")
 
 
 def _rate(aged: Aged | None) -> str:
     return "-" if aged is None or aged.rate_hz is None else f"{aged.rate_hz:.1f}"
 
 
-def _styled(text: str, style: str = "") -> tuple[str, str]:
-    """A cell from a schema module's view: an Alert is red, whatever the row's style."""
-    return (text, "red") if isinstance(text, Alert) else (text, style)
+def _service_rows(view: View):
+    from rich.text import Text
 
-
-def _service_rows(view: View) -> Grid:
     columns = list(HealthReport().cells())          # what common/health.py shows of a report
-    grid = Grid("services", "service", "status", *columns, "health age")
+    table = _table("services", "service", "status", "errors/s", *columns, "health age")
     for s in view.services:
         style = {"alive": "green", "lost": "bold red", "no token": "yellow"}[s.status]
         status = s.status if s.status_age_s is None or s.status == "alive" else f"{s.status} {fmt_age(s.status_age_s)}"
-        stale = "yellow" if s.health is not None and s.health.stale else ""
+        row_style = "yellow" if s.health is not None and s.health.stale else ""
         cells = (s.report or HealthReport()).cells()
-        grid.add(s.name, (status, style), *(_styled(cells.get(c, "-"), stale) for c in columns),
-                 _age_cell(s.health))
+        recent = (Text(fmt_map(s.error_rates, 2), style="bold red") if s.error_rates
+                  else Text("-", style=row_style))
+        # totals from the past stay readable but quiet; red is for errors happening now
+        totals = [Text(cells.get(c, "-"), style="dim") if isinstance(cells.get(c), Alert) and not s.error_rates
+                  else _cell(cells.get(c, "-"), row_style) for c in columns]
+        table.add_row(s.name, Text(status, style=style), recent, *totals, _age_cell(s.health))
     if not view.services:
-        grid.add(("no service seen yet", "dim"))
-    return grid
+        table.add_row(Text("no service seen yet", style="dim"))
+    return table
 
 
-def _sample_rows(title: str, rows: dict[str, Aged], cells_of, label: str) -> Grid:
+def _sample_rows(title: str, rows: dict[str, Aged], cells_of, label: str):
     """One row per unit; columns are whatever the cells of any row name."""
     cells = {unit: cells_of(aged.value) for unit, aged in rows.items()}
     columns = list(dict.fromkeys(c for row in cells.values() for c in row))
-    grid = Grid(title, label, *columns, "Hz", "age")
+    table = _table(title, label, *columns, "Hz", "age")
     for unit, aged in rows.items():
         style = "dim" if aged.stale else ""
-        grid.add(unit, *(_styled(cells[unit].get(c, "-"), style) for c in columns), _rate(aged),
-                 _age_cell(aged))
-    return grid
+        table.add_row(unit, *(_cell(cells[unit].get(c, "-"), style, c) for c in columns),
+                      _rate(aged), _age_cell(aged))
+    return table
 
 
-def _field_rows(title: str, aged: Aged, cells: dict[str, str], per_row: int = 4) -> Grid:
-    """A sample with many fields (the steering state) as name/value pairs, a few a line."""
+def _field_rows(title: str, aged: Aged, cells: dict[str, str], per_row: int = 4):
+    """A sample with many fields (the steering state) as name/value pairs, a few a line,
+    in the order its view gives them (the ones that matter most first)."""
+    from rich.text import Text
+
     style = "dim" if aged.stale else ""
-    pairs = [("age", _age_cell(aged)), ("Hz", (_rate(aged), "")),
-             *((name, _styled(value, style)) for name, value in cells.items())]
-    grid = Grid(title, *([""] * (2 * per_row)))
+    pairs = [("age", _age_cell(aged)), ("Hz", Text(_rate(aged))),
+             *((name, _cell(value, style, name)) for name, value in cells.items())]
+    table = _table(title, *([""] * (2 * per_row)), show_header=False)
     for i in range(0, len(pairs), per_row):
-        grid.add(*(cell for name, value in pairs[i:i + per_row] for cell in ((name, "bold"), value)))
-    return grid
+        row = [cell for name, value in pairs[i:i + per_row] for cell in (Text(name, style="bold"), value)]
+        table.add_row(*row)
+    return table
 
 
-def render(view: View, title: str = ""):
-    """The view as one rich renderable."""
+def render(view: View, title: str = "", width: int | None = None):
+    """The view as one rich renderable, laid out for a screen `width` columns wide."""
     from rich.console import Group
     from rich.text import Text
 
-    grids = [_service_rows(view)]
+    per_row = 4 if width is None else max(1, min(4, width // 40))
+    tables = [_service_rows(view)]
     if view.gnss:
-        grids.append(_sample_rows("GNSS", view.gnss, gnss_view, "unit"))
+        tables.append(_sample_rows("GNSS", view.gnss, gnss_view, "unit"))
     if view.imu:
-        grids.append(_sample_rows("IMU", view.imu, imu_view, "unit"))
+        tables.append(_sample_rows("IMU", view.imu, imu_view, "unit"))
     if view.steering:
-        grids.append(_field_rows("steering", view.steering, steering_view(view.steering.value)))
+        tables.append(_field_rows("steering", view.steering, steering_view(view.steering.value), per_row))
     if view.estimator:
-        grids.append(_sample_rows("estimator", {"state": view.estimator}, estimator_view, ""))
+        tables.append(_sample_rows("estimator", {"state": view.estimator}, estimator_view, ""))
     if view.truth:
-        grids.append(_sample_rows("simulator truth", {"truth": view.truth}, truth_view, ""))
+        tables.append(_sample_rows("simulator truth", {"truth": view.truth}, truth_view, ""))
     if view.others or view.bad:
-        others = Grid("other keys", "key", "schema", "Hz", "age")
+        others = _table("other keys", "key", "schema", "Hz", "age")
         for aged in view.others:
-            others.add(aged.key, aged.schema or "-", _rate(aged), _age_cell(aged))
+            others.add_row(aged.key, aged.schema or "-", _rate(aged), _age_cell(aged))
         for key, why in sorted(view.bad.items()):
-            others.add(key, (f"undecodable: {why}"[:80], "red"), "-", "-")
-        grids.append(others)
+            others.add_row(key, Text(f"undecodable: {why}"[:80], style="red"), "-", "-")
+        tables.append(others)
     heading = title or f"viena monitor · car {view.car} · {view.total_rate_hz:.0f} samples/s"
     return Group(Text(heading, style="bold reverse", no_wrap=True, overflow="ellipsis"),
-                 *(g.text() for g in grids))
+                 *(item for table in tables for item in (Text(""), table)))
+
+
+def render_unreachable(car: str, why: str, waited_s: float, timeout_s: float):
+    """The screen while the router cannot be reached: where, why, and for how long."""
+    from rich.console import Group
+    from rich.text import Text
+
+    until = f"; giving up after {timeout_s:g} s" if timeout_s else ""
+    return Group(Text(f"viena monitor · car {car}", style="bold reverse"), Text(""),
+                 Text(why or "connecting...", style="bold red"),
+                 Text(f"trying for {waited_s:.0f} s{until} (Ctrl-C quits)", style="dim"))
 
 
 # -- zenoh glue -------------------------------------------------------------------------------
@@ -395,59 +438,96 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                              f"health after {HEALTH_STALE_S:g})")
     parser.add_argument("--duration", type=float, default=0.0, metavar="S",
                         help="exit after S seconds (default: until Ctrl-C)")
+    add_timeout_flag(parser, 0.0)
     add_common_arguments(parser)
     return parser
 
 
 def run(args: argparse.Namespace) -> int:
+    return guarded("viena monitor", _run, args)
+
+
+class _Connecting:
+    """Opens the session in a thread, so the screen can say what is wrong meanwhile."""
+
+    def __init__(self, link: Connection, stop: threading.Event, timeout_s: float):
+        self.started = time.monotonic()
+        self.why = ""
+        self.session = None
+        self.failure: Fail | None = None
+        self.done = threading.Event()
+        threading.Thread(target=self._open, args=(link, stop, timeout_s), daemon=True).start()
+
+    def _open(self, link: Connection, stop: threading.Event, timeout_s: float) -> None:
+        try:
+            self.session = link.open(stop, timeout_s, on_wait=self._waiting)
+        except Fail as exc:
+            self.failure = exc
+        finally:
+            self.done.set()
+
+    def _waiting(self, why: str) -> None:
+        self.why = why
+
+
+def _run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.live import Live
 
     setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
-    try:
-        toml = load_settings_file(args)
-        conf = zenoh_config(args, toml)
-        model = MonitorModel(car_name(args, toml), data_stale_s=args.stale)
-        if args.refresh <= 0:
-            raise InputError("--refresh must be > 0")
-    except (InputError, ValueError) as exc:
-        print(f"viena monitor: {exc}", file=sys.stderr)
-        return 2
+    if args.refresh <= 0:
+        raise Fail("--refresh must be > 0", 2)
+    link = Connection(args)
+    model = MonitorModel(link.car, data_stale_s=args.stale)
     stop = stop_on_signals()
-    session = open_session(conf, stop)
-    if session is None:
-        return 0
-    feed = LiveFeed()
-    keys = model.keys
-    declared = feed.subscribe(session, keys)
-    where = ", ".join(args.connect or []) or "the configured router"
+    connecting = _Connecting(link, stop, args.timeout)
+    where = ", ".join(config_endpoints(link.conf, "connect")) or "the configured router"
     console = Console()
     deadline = time.monotonic() + args.duration if args.duration > 0 else None
     period = 1.0 / args.refresh
+    feed, declared = LiveFeed(), []
     try:
         with Live(console=console, auto_refresh=False, screen=console.is_terminal,
                   redirect_stderr=False) as live:
             next_frame = time.monotonic()
             while not stop.is_set():
-                feed.poll()
+                if not declared and connecting.done.is_set():
+                    if connecting.session is None:
+                        break                               # stopped, or gave up: said below
+                    declared = feed.subscribe(connecting.session, model.keys)
+                if declared:
+                    feed.poll()
                 now = time.monotonic()
                 if now >= next_frame:
                     next_frame = now + period
-                    feed.apply(model)
-                    view = model.view(now)
-                    live.update(render(view, f"viena monitor · car {view.car} · {where} · "
-                                             f"{time.strftime('%H:%M:%S')} · "
-                                             f"{view.total_rate_hz:.0f} samples/s"), refresh=True)
+                    if declared:
+                        feed.apply(model)
+                        view = model.view(now)
+                        live.update(render(view, f"viena monitor · car {view.car} · {where} · "
+                                                 f"{time.strftime('%H:%M:%S')} · "
+                                                 f"{view.total_rate_hz:.0f} samples/s", console.width),
+                                    refresh=True)
+                    else:
+                        live.update(render_unreachable(model.keys.car, connecting.why,
+                                                       now - connecting.started, args.timeout),
+                                    refresh=True)
                     if deadline is not None and now >= deadline:
                         break
                 stop.wait(POLL_S)
     finally:
+        interrupted = stop.is_set()                 # Ctrl-C or SIGTERM
+        stop.set()                                  # a connecting thread gives up
         for entity in declared:
             try:
                 entity.undeclare()
             except Exception:
                 pass
-        session.close()
+        if connecting.done.wait(2.0) and connecting.session is not None:
+            connecting.session.close()
+    if connecting.failure is not None:
+        raise connecting.failure
+    if not declared and not interrupted:
+        raise Fail(connecting.why or f"no session with {where} in {args.duration:g} s")
     return 0
 
 

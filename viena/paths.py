@@ -1,15 +1,23 @@
-"""Where the repository's shipped files are: compose profiles and zenoh configs."""
+"""Where the files viena reads at run time are: compose profiles, zenoh configs, recordings.
+
+They live at the top of the repository (compose/, data/) and reach the package through
+the links viena/profiles and viena/data, which a wheel turns into plain folders; so the
+same paths work from a checkout, an editable install and an installed wheel, from any
+working directory. VIENA_COMPOSE points `viena up` at other profiles (tests use it).
+"""
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+PACKAGE = Path(__file__).resolve().parent
 
 
 def compose_dir() -> Path:
-    return Path(os.environ.get("VIENA_COMPOSE", REPO / "compose"))
+    """The profiles: `<profile>.conf`, `<profile>.toml`, programs/, zenoh/."""
+    return Path(os.environ.get("VIENA_COMPOSE") or (PACKAGE / "profiles").resolve())
 
 
 def router_config() -> Path:
     return compose_dir() / "zenoh" / "router.json5"
+

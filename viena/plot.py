@@ -2,9 +2,12 @@
 
 Left, the car's track on a local map (ENU metres): GNSS fixes (one colour per receiver),
 the estimator's track and, from the simulator, the truth. Right, over time: speed, yaw
-and steering angle from the same sources. The map's origin is the simulator's origin when
-the recording has truth, else the estimator's, else the first valid fix. Samples are read
-defensively: a field a source lacks leaves its line out, never the picture.
+and steering angle from the same sources, and how sure the estimator says it is (its
+position's sigma, horizontally and vertically, with, from the simulator, how far off it
+really was). The map's origin is the simulator's origin when the recording has truth,
+else the estimator's, else the first valid fix. Samples are read defensively: a field a
+source lacks leaves its line out, never the picture. Estimator states of either version
+are read: /2's sigmas (`sigma_h_m`, `sigma_v_m`), or /1's variances (`enu_var_m2`).
 """
 from __future__ import annotations
 
@@ -186,6 +189,22 @@ def _add_estimator(drive: Drive, t: float, _key: str, s: dict) -> None:
         drive.estimator["speed"].add(t, v)
     if s.get("heading_valid") is not False and (v := _number(s.get("yaw_rad"))) is not None:
         drive.estimator["yaw"].add(t, _yaw_deg(v))
+    if s.get("position_valid") is not False:
+        sigma = _sigmas(s)
+        if sigma:
+            drive.estimator["sigma"].add(t, sigma)
+
+
+def _sigmas(s: dict) -> list[float] | None:
+    """[horizontal, vertical] sigma of an estimator state: /2 says them, /1 has variances
+    (the larger horizontal one stands in for the ellipse's semi-major axis)."""
+    h, v = _number(s.get("sigma_h_m")), _number(s.get("sigma_v_m"))
+    if h is not None and v is not None:
+        return [h, v]
+    var = _vec(s.get("enu_var_m2"), 3)
+    if var and min(var) >= 0.0:
+        return [math.sqrt(max(var[0], var[1])), math.sqrt(var[2])]
+    return None
 
 
 def _add_fix(drive: Drive, t: float, key: str, s: dict) -> None:
@@ -242,12 +261,13 @@ def draw(drive: Drive, title: str, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig = plt.figure(figsize=(15, 9), dpi=100, layout="constrained")
-    grid = fig.add_gridspec(3, 2, width_ratios=[1.15, 1])
+    fig = plt.figure(figsize=(15, 11), dpi=100, layout="constrained")
+    grid = fig.add_gridspec(4, 2, width_ratios=[1.15, 1])
     track = fig.add_subplot(grid[:, 0])
     speed = fig.add_subplot(grid[0, 1])
     yaw = fig.add_subplot(grid[1, 1], sharex=speed)
     steer = fig.add_subplot(grid[2, 1], sharex=speed)
+    sigma = fig.add_subplot(grid[3, 1], sharex=speed)
     fig.suptitle(title, fontsize=12)
 
     for unit, colour in zip(sorted(drive.gnss), GNSS_COLOURS * 4):
@@ -272,6 +292,7 @@ def draw(drive: Drive, title: str, path: Path) -> None:
         steer.plot(*drive.truth["wheel"].array(), "-", **TRUTH_STYLE)
     for name, colour in zip(sorted(drive.steering), ["tab:orange", "tab:purple", "tab:olive", "tab:brown"] * 4):
         steer.plot(*drive.steering[name].array(), "-", lw=1, color=colour, label=f"steering {name}")
+    _draw_sigma(sigma, drive)
 
     _mark_start(track, drive)
     track.set_aspect("equal", adjustable="datalim")
@@ -283,18 +304,36 @@ def draw(drive: Drive, title: str, path: Path) -> None:
     speed.set(title="speed", ylabel="m/s")
     yaw.set(title="yaw (counter-clockwise from north)", ylabel="deg", ylim=(-185, 185),
             yticks=range(-180, 181, 90))
-    steer.set(title="steering (wheel angle)", ylabel="deg", xlabel="time since start [s]")
-    for ax in (track, speed, yaw, steer):
+    steer.set(title="steering (wheel angle)", ylabel="deg")
+    sigma.set(title="estimator: position sigma (and, simulated, its true error)", ylabel="m",
+              xlabel="time since start [s]")
+    for ax in (track, speed, yaw, steer, sigma):
         ax.grid(True, alpha=0.3)
         handles, labels = ax.get_legend_handles_labels()
         if handles:
             ax.legend(fontsize=8, loc="best", markerscale=2.5)
         elif ax is not track:
             ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", color="0.5")
-    plt.setp(speed.get_xticklabels(), visible=False)
-    plt.setp(yaw.get_xticklabels(), visible=False)
+    for ax in (speed, yaw, steer):
+        plt.setp(ax.get_xticklabels(), visible=False)
     fig.savefig(path, format="png")
     plt.close(fig)
+
+
+def _draw_sigma(ax, drive: Drive) -> None:
+    """The estimator's horizontal and vertical sigma; with the truth, its horizontal error."""
+    if not drive.estimator["sigma"].t:
+        return
+    t, sig = drive.estimator["sigma"].array()
+    ax.plot(t, sig[:, 0], "-", color="tab:red", lw=1.2, label="σ horizontal (semi-major)")
+    ax.plot(t, sig[:, 1], "--", color="tab:red", lw=1, label="σ vertical")
+    if drive.truth["enu"].t and drive.estimator["enu"].t:
+        t_true, true = drive.truth["enu"].array()
+        t_est, est = drive.estimator["enu"].array()
+        e = np.interp(t_est, t_true, true[:, 0]) - est[:, 0]
+        n = np.interp(t_est, t_true, true[:, 1]) - est[:, 1]
+        ax.plot(t_est, np.hypot(e, n), "-", color="black", lw=0.8, alpha=0.7,
+                label="true horizontal error (sim)")
 
 
 def _mark_start(ax, drive: Drive) -> None:

@@ -8,7 +8,8 @@ complete, so a recording cut short (killed, disk full) never passes for a good o
 (`viena replay` and `viena export` still read a `.part` as far as it goes).
 
 Zenoh's threads only stamp and queue each sample; one thread writes, so a slow disk
-delays the file, not the dataflow.
+delays the file, not the dataflow. Nothing on the keys for a few seconds is said on
+stderr; a recording that got nothing at all is not kept, and the exit status is 1.
 """
 from __future__ import annotations
 
@@ -22,12 +23,10 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from viena.common.errors import InputError
-from viena.common.keys import Keys
 from viena.common.log import setup_logging
-from viena.common.session import (stop_on_signals, add_common_arguments, car_name, load_settings_file,
-                                  open_session, zenoh_config)
+from viena.common.session import add_common_arguments, stop_on_signals
 from viena.recording import ReceiveClock, RecordingWriter, human_bytes
+from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions
 
 log = logging.getLogger("viena.record")
 PROGRESS_PERIOD_S = 0.5
@@ -47,16 +46,18 @@ class Recorder:
         self.clock = ReceiveClock()
         self.error: OSError | None = None
         self.failed = threading.Event()
+        self.silence = SilenceWarning("viena record", keyexprs)
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._subscribers = []
         self._thread = threading.Thread(target=self._write_loop, name="record-writer", daemon=True)
 
     def start(self) -> None:
         self._thread.start()
-        clock, put = self.clock, self._queue.put
+        clock, put, heard = self.clock, self._queue.put, self.silence.heard
 
         def on_sample(sample) -> None:      # zenoh's thread: stamp and queue, nothing else
             put((clock(), str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
+            heard()
 
         for keyexpr in self.keyexprs:
             self._subscribers.append(self.session.declare_subscriber(keyexpr, on_sample))
@@ -116,6 +117,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--duration", type=float, default=0.0, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress line")
+    add_timeout_flag(parser)
     add_common_arguments(parser)
     parser._option_string_actions["--car"].help = (
         "record only viena/NAME/** (default: every car, viena/**)")
@@ -156,30 +158,31 @@ class Progress:
 
 
 def run(args: argparse.Namespace) -> int:
+    return guarded("viena record", _run, args)
+
+
+def _run(args: argparse.Namespace) -> int:
     setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
-    try:
-        toml = load_settings_file(args)
-        conf = zenoh_config(args, toml)
-        car = car_name(args, toml)
-        keyexprs = args.keyexprs or [Keys(car).all if args.car or "car" in toml else "viena/**"]
-    except (InputError, ValueError) as exc:
-        print(f"viena record: {exc}", file=sys.stderr)
-        return 2
+    link = Connection(args)
+    keyexprs = key_expressions(args.keyexprs or [link.keys.all if args.car or "car" in link.toml
+                                                 else "viena/**"])
     output = Path(args.output or default_output())
     try:
         writer = RecordingWriter(output, metadata={
-            "keyexprs": " ".join(keyexprs), "car": car, "host": socket.gethostname(),
+            "keyexprs": " ".join(keyexprs), "car": link.car, "host": socket.gethostname(),
             "started": datetime.now(timezone.utc).isoformat(timespec="seconds")})
     except OSError as exc:
-        print(f"viena record: cannot write {output}: {exc.strerror or exc}", file=sys.stderr)
-        return 1
+        raise Fail(f"cannot write {output}: {exc.strerror or exc}") from None
 
     stop = stop_on_signals()
-    session = open_session(conf, stop)
+    try:
+        session = link.open(stop, args.timeout)
+    except Fail:
+        writer.discard()
+        raise
     if session is None:
         writer.discard()
-        print("viena record: stopped before the router answered: nothing recorded", file=sys.stderr)
-        return 1
+        raise Fail("stopped before the router answered: nothing recorded")
     recorder = Recorder(session, keyexprs, writer)
     progress = Progress(recorder, output, args.quiet)
     try:
@@ -190,10 +193,12 @@ def run(args: argparse.Namespace) -> int:
         session.close()
     if recorder.error is not None:
         exc = recorder.error
-        print(f"viena record: cannot write {output}: {exc.strerror or exc} "
-              f"(after {recorder.samples} samples; what was written is in {writer.part}, "
-              f"not a complete recording)", file=sys.stderr)
-        return 1
+        raise Fail(f"cannot write {output}: {exc.strerror or exc} (after {recorder.samples} "
+                   f"samples; what was written is in {writer.part}, not a complete recording)")
+    if recorder.samples == 0:
+        path.unlink(missing_ok=True)
+        raise Fail(f"nothing came on {', '.join(repr(k) for k in keyexprs)}: no file written (is "
+                   f"the key right? `viena list` shows what the car publishes)")
     progress.done(path)
     return 0
 
@@ -212,6 +217,7 @@ def _record_until_stopped(recorder: Recorder, progress: Progress, duration: floa
         if stop.wait(wait):
             break
         progress.update()
+        recorder.silence.check()
 
 
 def main(argv: list[str] | None = None) -> int:

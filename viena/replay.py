@@ -21,9 +21,9 @@ from typing import Iterable
 from viena.common.errors import InputError
 from viena.common.keys import ROOT, Keys
 from viena.common.log import setup_logging
-from benchmarks.harness import percentile
-from viena.common.session import stop_on_signals, add_common_arguments, load_settings_file, open_session, zenoh_config
+from viena.common.session import add_common_arguments, stop_on_signals
 from viena.recording import KeyFilter, Recorded, Recording
+from viena.tool import Connection, Fail, add_timeout_flag, guarded, key_expressions
 
 log = logging.getLogger("viena.replay")
 EARLY_S = 0.0002
@@ -180,6 +180,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--keyexpr", nargs="+", metavar="KEYEXPR",
                         help="replay only keys these key expressions include (as recorded, "
                              "before --car renames them)")
+    add_timeout_flag(parser)
     add_common_arguments(parser)
     parser._option_string_actions["--car"].help = (
         "publish under viena/NAME/ instead of the recorded car's keys (default: as recorded)")
@@ -187,21 +188,24 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 
 def run(args: argparse.Namespace) -> int:
+    return guarded("viena replay", _run, args)
+
+
+def _run(args: argparse.Namespace) -> int:
     setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
     try:
         if args.rate < 0:
             raise InputError(f"--rate must be >= 0, got {args.rate}")
         if args.car is not None:
             Keys(args.car)                               # checks the name
-        conf = zenoh_config(args, load_settings_file(args))
-        keys = KeyFilter(args.keyexpr)
+        keys = KeyFilter(key_expressions(args.keyexpr) if args.keyexpr else None)
         recording = Recording(args.file)
     except (InputError, ValueError) as exc:
-        print(f"viena replay: {exc}", file=sys.stderr)
-        return 2
+        raise Fail(str(exc), 2) from None
+    link = Connection(args)
 
     stop = stop_on_signals()
-    session = open_session(conf, stop)
+    session = link.open(stop, args.timeout)
     if session is None:
         return 0
     player = Player(session, args.rate, args.car)
@@ -228,7 +232,9 @@ def run(args: argparse.Namespace) -> int:
     stats = player.stats
     timing = ""
     if stats.lateness_s:
-        timing = f"; 99 % within {percentile(stats.lateness_s, 99) * 1e3:.1f} ms of their time"
+        import numpy as np
+
+        timing = f"; 99 % within {np.percentile(stats.lateness_s, 99) * 1e3:.1f} ms of their time"
     print(f"replayed {stats.samples} samples on {len(stats.keys)} keys in "
           f"{time.monotonic() - t_start:.1f} s ({stats.passes} "
           f"{'pass' if stats.passes == 1 else 'passes'}){timing}", file=sys.stderr)

@@ -2,6 +2,9 @@
 
 Each sample is one line: `KEY {fields...}`, checked against its schema when the
 encoding names one; `--json` prints one JSON object per line for programs.
+`--field accel_mps2` prints only that field (a dotted path reaches inside: `decision.reason`,
+`accel_mps2.2`); several --field print a map of them. Nothing on the key for a few
+seconds is said on stderr (a misspelt key is otherwise silence).
 """
 from __future__ import annotations
 
@@ -15,8 +18,10 @@ from viena.common.errors import InputError
 from viena.common.log import setup_logging
 from viena.common.payload import is_json_text, to_jsonable
 from viena.common.schema import schema_of, unpack
-from viena.common.session import (Unreachable, add_common_arguments, load_settings_file, open_session,
-                                  stop_on_signals, zenoh_config)
+from viena.common.session import add_common_arguments, stop_on_signals
+from viena.tool import Connection, SilenceWarning, guarded, key_expressions
+
+MISSING = object()
 
 
 def decode_sample(payload: bytes, encoding: str | None) -> object:
@@ -36,52 +41,84 @@ def format_line(key: str, value: object, as_json: bool, encoding: str | None = N
     return f"{key} {json.dumps(to_jsonable(value), separators=(', ', ': '))}"
 
 
+def field(value: object, path: str) -> object:
+    """`value` at a dotted path ('accel_mps2', 'decision.reason', 'enu_m.0'), else MISSING."""
+    for part in path.split("."):
+        if isinstance(value, dict) and part in value:
+            value = value[part]
+        elif isinstance(value, (list, tuple)) and part.lstrip("-").isdigit() and -len(value) <= int(part) < len(value):
+            value = value[int(part)]
+        else:
+            return MISSING
+    return value
+
+
+def select(value: object, paths: list[str]) -> tuple[object, list[str]]:
+    """The fields `paths` of a sample (the value itself for one path); and those missing."""
+    found = {p: field(value, p) for p in paths}
+    missing = [p for p, v in found.items() if v is MISSING]
+    if len(paths) == 1:
+        return found[paths[0]], missing
+    return {p: v for p, v in found.items() if v is not MISSING}, missing
+
+
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="viena sub", description=__doc__)
     parser.add_argument("keyexpr", nargs="?", default=None,
                         help="key expression, e.g. 'viena/elettra/gnss/*/fix' (default viena/<car>/**)")
+    parser.add_argument("--field", action="append", metavar="NAME",
+                        help="print only this field (dotted path: decision.reason, enu_m.0); repeatable")
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
     parser.add_argument("-n", "--count", type=int, default=0, help="exit after N samples")
-    parser.add_argument("--timeout", type=float, default=0.0,
-                        help="exit after this many seconds, connecting included (0 = run until Ctrl-C)")
+    parser.add_argument("--timeout", type=float, default=0.0, metavar="S",
+                        help="exit after this many seconds, connecting included: a router not reached "
+                             "by then is an error (default 0: run until Ctrl-C)")
     add_common_arguments(parser)
     return parser
 
 
 def run(args: argparse.Namespace) -> int:
-    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
-    from viena.common.keys import Keys
-    from viena.common.session import car_name
+    return guarded("viena sub", _run, args)
 
-    try:
-        toml = load_settings_file(args)
-        conf = zenoh_config(args, toml)
-        keyexpr = args.keyexpr or Keys(car_name(args, toml)).all
-    except InputError as exc:
-        print(f"viena sub: {exc}", file=sys.stderr)
-        return 2
+
+def _run(args: argparse.Namespace) -> int:
+    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
+    link = Connection(args)
+    [keyexpr] = key_expressions([args.keyexpr or link.keys.all])
     stop = stop_on_signals()
-    try:
-        session = open_session(conf, stop, timeout_s=args.timeout or None)
-    except Unreachable as exc:
-        print(f"viena sub: {exc}", file=sys.stderr)
-        return 1
+    session = link.open(stop, args.timeout)
     if session is None:
         return 0
     lines: queue.Queue = queue.Queue()
+    silence = SilenceWarning("viena sub", [keyexpr])
+    told_missing: set[tuple[str, str]] = set()
 
     def on_sample(sample) -> None:      # zenoh's thread: decode and hand over, never block
+        silence.heard()
         key, enc = str(sample.key_expr), str(sample.encoding)
         try:
-            lines.put(format_line(key, decode_sample(sample.payload.to_bytes(), enc), args.json, enc))
+            value = decode_sample(sample.payload.to_bytes(), enc)
         except (InputError, ValueError) as exc:
             lines.put(f"# {key}: undecodable sample: {exc}")
+            return
+        if args.field:
+            whole = value
+            value, missing = select(whole, args.field)
+            for path in missing:
+                if (key, path) not in told_missing:
+                    told_missing.add((key, path))
+                    have = ", ".join(map(str, whole)) if isinstance(whole, dict) else ""
+                    lines.put(f"# {key}: no field '{path}'" + (f" (it has: {have})" if have else ""))
+            if missing and len(args.field) == 1:
+                return
+        lines.put(format_line(key, value, args.json, enc))
 
     sub = session.declare_subscriber(keyexpr, on_sample)
     seen, status = 0, 0
     deadline = time.monotonic() + args.timeout if args.timeout else None
     try:
         while not stop.is_set():
+            silence.check()
             try:
                 line = lines.get(timeout=0.1)
             except queue.Empty:
@@ -105,3 +142,7 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     return run(build_parser().parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -62,6 +62,7 @@ class Estimator:
         self.log = log or logging.getLogger("viena.estimator")
         self._limits = ImuLimits(s.max_accel_g * _G, math.radians(s.max_gyro_dps))
         self._imu_gap_s = s.imu_gap_s
+        self._still_mps = s.still_speed_mps
         self.gnss_timeout_ns = int(s.gnss_timeout_s * 1e9)
         if len(s.accel_bias_sigma_mps2) != 3:
             raise ValueError("accel_bias_sigma_mps2 is [x right, y forward, z up] in m/s^2")
@@ -252,9 +253,10 @@ class Estimator:
         fx, fy, fz = ax - kx[6], ay - kx[7], az - kx[8]
         speed_still = None
         if kf.initialized:
-            s = self.settings
-            speed_still = self.gnss.says_still(t, math.hypot(kx[3], kx[4]), s.still_speed_mps,
-                                               self.gnss_timeout_ns)
+            # GNSS (lately) and the filter both put the speed below still_speed_mps
+            g, v = self.gnss, self._still_mps
+            speed_still = (g.speed_t is not None and g.speed < v and t - g.speed_t < self.gnss_timeout_ns
+                           and kx[3] * kx[3] + kx[4] * kx[4] < v * v)
         standstill = self.standstill
         standstill.update(dt, gx, gy, gz, fx, fy, fz, att.rot, self._gravity, speed_still, att)
         heading = self.heading
@@ -293,7 +295,7 @@ class Estimator:
         else:
             # yaw unknown: the horizontal acceleration cannot be put in ENU; let GNSS lead
             au = r[6] * fx + r[7] * fy + r[8] * fz - self._gravity
-            kf.move(0.0, 0.0, au, dt_state)
+            kf.move(0.0, 0.0, au, dt_state, r, vertical=True)
         c = self.constraints
         if t >= c.next_t:
             c.next_t = t + c.interval_ns

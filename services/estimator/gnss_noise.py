@@ -19,8 +19,10 @@ from __future__ import annotations
 
 #: the share is an average over about this many fix-to-fix differences
 AVERAGE_FIXES = 200
-#: a share is never taken as less (a receiver is never perfectly smooth) ...
-MIN_SHARE = 0.02
+#: a share is never taken as less: no receiver is perfectly smooth, and a white part keeps
+#: a fix handled late (against the trajectory's past, its correction applied now) from
+#: swinging the split between the position and the receiver's error ...
+MIN_SHARE = 0.1
 #: ... and one difference never counts as more than this (one wild fix is not a share)
 MAX_RATIO = 4.0
 #: fixes further apart than this say little about the white part

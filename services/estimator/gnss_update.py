@@ -90,11 +90,6 @@ class GnssUpdate:
     def live_units(self, t: int, timeout_ns: int) -> list[str]:
         return sorted(u for u, tf in self.last_fix_t.items() if t - tf < timeout_ns)
 
-    def says_still(self, t_imu: int, kf_speed: float, still_mps: float, timeout_ns: int) -> bool:
-        """GNSS (lately) and the filter both put the speed below still_mps."""
-        return (self.speed_t is not None and self.speed < still_mps
-                and t_imu - self.speed_t < timeout_ns and kf_speed < still_mps)
-
     def time_var(self) -> float:
         """Variance of the IMU's clock against GNSS's (s^2): the setting's, and the offset
         the residuals point at, until it is set right."""

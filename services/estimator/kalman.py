@@ -39,6 +39,9 @@ N = 9
 P_, V_, B_ = slice(0, 3), slice(3, 6), slice(6, 9)
 #: the tilt error states, when there are any
 T_ = slice(9, 11)
+#: what drove the mean since the covariance last moved: nothing known, the IMU's vertical
+#: acceleration only (the yaw unknown), the IMU's whole
+FREE, VERTICAL, FULL = 0, 1, 2
 _I3 = np.eye(3)
 
 
@@ -82,7 +85,7 @@ class NavKalman:
         self.x = [0.0] * n
         self.P = np.eye(n)
         self._pending_dt = 0.0          # time the mean moved since the covariance last did
-        self._pending_imu = False       # ... driven by the IMU (else free acceleration)
+        self._pending_mode = FREE       # ... driven by the IMU (FULL, VERTICAL) or not (FREE)
         self._pending_rot = None        # body->ENU rotation to couple the bias with
         self._f_dt = [0.0, 0.0, 0.0]    # ... and the specific force (ENU) times time
         self._flushes = 0
@@ -145,9 +148,9 @@ class NavKalman:
             x[k:k + 3] = list(c @ np.array(self.x[f:f + 3]))
         else:
             P[k:k + 3, k:k + 3] = np.diag(np.square(sigma))
-        pending = (self._pending_dt, self._pending_imu, self._pending_rot, self._f_dt)
+        pending = (self._pending_dt, self._pending_mode, self._pending_rot, self._f_dt)
         self.n, self.x, self.P = n + 3, x, P
-        self._pending_dt, self._pending_imu, self._pending_rot, self._f_dt = pending
+        self._pending_dt, self._pending_mode, self._pending_rot, self._f_dt = pending
         self.receivers[unit] = k
         self._sigma[unit] = sigma
         return k
@@ -179,12 +182,13 @@ class NavKalman:
         return np.diag([c * u * v for u, v in zip(sa, sb)])
 
     # -- prediction -----------------------------------------------------------------------
-    def move(self, ae: float, an: float, au: float, dt: float, rot=None) -> None:
+    def move(self, ae: float, an: float, au: float, dt: float, rot=None, vertical: bool = False) -> None:
         """Move the mean by dt under ENU acceleration (ae, an, au); the covariance later.
 
         `rot` is the body->ENU rotation (9 floats, row-major) when the acceleration came from
         the IMU, so the bias and tilt are coupled in; None means the acceleration is unknown
-        and the covariance grows as for a constant-velocity model.
+        and the covariance grows as for a constant-velocity model. `vertical`: only the
+        vertical acceleration came from the IMU (the yaw is unknown), the horizontal is free.
         """
         x = self.x
         h = 0.5 * dt * dt
@@ -196,7 +200,7 @@ class NavKalman:
         x[5] += au * dt
         self._pending_dt += dt
         if rot is not None:
-            self._pending_imu = True
+            self._pending_mode = VERTICAL if vertical else FULL
             self._pending_rot = rot
             f = self._f_dt
             f[0] += ae * dt
@@ -211,31 +215,33 @@ class NavKalman:
         n, nz = self.n, self.noise
         F = np.eye(n)
         F[P_, V_] = _I3 * T
-        if self._pending_imu:
-            R = np.array(self._pending_rot).reshape(3, 3)
-            F[V_, B_] = -T * R
-            F[P_, B_] = -0.5 * T * T * R
+        mode = self._pending_mode
+        if mode != FREE:
+            rows = slice(0, 3) if mode == FULL else slice(2, 3)
+            R = np.array(self._pending_rot).reshape(3, 3)[rows]
+            F[3:6][rows, B_] = -T * R
+            F[0:3][rows, B_] = -0.5 * T * T * R
             if self.tilt:
                 # dv/dt = t x f, f the mean specific force in ENU over the interval
                 fe, fn, fu = (v / T for v in self._f_dt)
                 fu += nz.gravity
-                Ft = np.array(((0.0, fu), (-fu, 0.0), (fn, -fe)))
-                F[V_, T_] = T * Ft
-                F[P_, T_] = 0.5 * T * T * Ft
-            q_acc = nz.accel_psd
-        else:
-            q_acc = nz.free_accel_psd
+                Ft = np.array(((0.0, fu), (-fu, 0.0), (fn, -fe)))[rows]
+                F[3:6][rows, T_] = T * Ft
+                F[0:3][rows, T_] = 0.5 * T * T * Ft
+        q_h = nz.accel_psd if mode == FULL else nz.free_accel_psd
+        q_v = nz.accel_psd if mode != FREE else nz.free_accel_psd
         a = math.exp(-T / nz.gnss_tau_s)
         for k in self.receivers.values():
             F[k, k] = F[k + 1, k + 1] = F[k + 2, k + 2] = a
         P = F @ self.P @ F.T
         # white acceleration noise integrated into velocity and position, bias random walk
-        q3, q2, q1 = q_acc * T ** 3 / 3.0, q_acc * T * T / 2.0, q_acc * T
         for i in range(3):
+            q = q_h if i < 2 else q_v
+            q3, q2 = q * T ** 3 / 3.0, q * T * T / 2.0
             P[i, i] += q3
             P[i, i + 3] += q2
             P[i + 3, i] += q2
-            P[i + 3, i + 3] += q1
+            P[i + 3, i + 3] += q * T
             P[i + 6, i + 6] += nz.bias_walk_psd * T
         if self.tilt:
             P[9, 9] += nz.tilt_psd * T
@@ -255,7 +261,7 @@ class NavKalman:
             P = 0.5 * (P + P.T)         # what the updates' rounding made asymmetric
         self.P = P
         self._pending_dt = 0.0
-        self._pending_imu = False
+        self._pending_mode = FREE
         self._f_dt = [0.0, 0.0, 0.0]
         self.check()
 

@@ -1,4 +1,4 @@
-"""The estimate as a sample: viena.estimator.state/1, built from the estimator's parts.
+"""The estimate as a sample: viena.estimator.state/2, built from the estimator's parts.
 
 `build_state` reads the filters and says what the estimator is doing (`mode`); it also
 returns the sample's floats, so that the caller can check them all for a NaN at once
@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 
+from viena.services.estimator.angles import yaw_pitch_roll
 from viena.services.estimator.heading import UNKNOWN_VAR
 from viena.services.estimator.kalman import NavKalman
 from viena.services.estimator.navigation import waypoint_guidance
@@ -38,22 +39,30 @@ def build_state(est, seq: int) -> tuple[dict, list]:
     counters = est.counters
     if kf.initialized:
         x = kf.x
-        d = kf.P.diagonal().tolist()      # as of the last update or covariance step
+        P = kf.P                          # as of the last update or covariance step
+        d = P.diagonal().tolist()
         pos, vel, bias, pos_var, vel_var = x[0:3], x[3:6], x[6:9], d[0:3], d[3:6]
+        ee, en, eu, nn, nu, uu = (float(P[0, 0]), float(P[0, 1]), float(P[0, 2]),
+                                  float(P[1, 1]), float(P[1, 2]), float(P[2, 2]))
     else:
         pos = vel = bias = [0.0, 0.0, 0.0]
         pos_var = vel_var = [NavKalman.MAX_POS_VAR] * 3
-    w, qx, qy, qz = q = att.att.q
-    yaw = math.atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
-    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * qy - qz * qx))))
-    roll = math.atan2(2 * (w * qx + qy * qz), 1 - 2 * (qx * qx + qy * qy))
+        ee = nn = uu = NavKalman.MAX_POS_VAR
+        en = eu = nu = 0.0
+    # the horizontal ellipse's semi-major axis: the larger eigenvalue of [[ee, en], [en, nn]]
+    half, diff = 0.5 * (ee + nn), 0.5 * (ee - nn)
+    sigma_h = math.sqrt(max(0.0, half + math.sqrt(diff * diff + en * en)))
+    q = att.att.q
+    yaw, pitch, roll = yaw_pitch_roll(q)
     t = est.timeline.t_state or TIME_FLOOR_NS
     frame = est.frame
     geo = (None, None, None)
     if frame is not None and kf.initialized:
         geo = frame.geodetic_of_enu(pos[0], pos[1], pos[2])
     source = est.heading.source
-    att_var = [est.heading.yaw_var(), *(est.tilt_var() if att.aligned else (UNKNOWN_VAR,) * 2)]
+    # [yaw, pitch (about the right axis), roll (about forward)]
+    tilt = est.tilt_var() if att.aligned else (UNKNOWN_VAR, UNKNOWN_VAR)
+    att_var = [est.heading.yaw_var(), tilt[1], tilt[0]]
     out = {
         "t": t,
         "seq": seq,
@@ -62,12 +71,17 @@ def build_state(est, seq: int) -> tuple[dict, list]:
         "heading_valid": est.heading.valid,
         "heading_source": source,
         "position_valid": kf.initialized,
+        "standstill": est.standstill.still,
         "imu_live": est.timeline.imu_live,
         "gnss_live": est.gnss.live_units(t, est.gnss_timeout_ns),
         "origin": list(frame.origin) if frame else None,
         "origin_source": est.origin_source,
         "enu_m": list(pos),
         "enu_var_m2": pos_var,
+        "enu_cov_m2": [ee, en, eu, nn, nu, uu],
+        "enu_sigma_m": [math.sqrt(max(0.0, v)) for v in pos_var],
+        "sigma_h_m": sigma_h,
+        "sigma_v_m": math.sqrt(max(0.0, uu)),
         "lat_deg": geo[0], "lon_deg": geo[1], "height_m": geo[2],
         "vel_enu_mps": list(vel),
         "vel_var_m2ps2": vel_var,
@@ -83,12 +97,14 @@ def build_state(est, seq: int) -> tuple[dict, list]:
         "input_rejected": dict(counters.input_rejected),
         "counts": dict(counters.counts),
         "last_reset": counters.last_reset,
+        "imu_time_offset_hint_s": est.gnss.timing.offset_s,
         "waypoint": list(est.waypoint) if est.waypoint else None,
         "wp_bearing_deg": None, "wp_distance_m": None, "wp_heading_error_deg": None,
     }
     if est.waypoint and geo[0] is not None:
         out.update(waypoint_guidance(geo[0], geo[1], yaw, *est.waypoint, geo[2]))
-    numbers = [*pos, *vel, *bias, *pos_var, *vel_var, *q, *att_var, *att.rate, *att.gyro_bias]
+    numbers = [*pos, *vel, *bias, *pos_var, *vel_var, *q, *att_var, *att.rate, *att.gyro_bias,
+               ee, en, eu, nn, nu, uu, sigma_h]
     if geo[0] is not None:
         numbers += geo
     return out, numbers

@@ -4,11 +4,11 @@
 
 Subscribes to viena.imu.sample/1 and viena.gnss.fix/1 samples (key expressions relative to
 viena/<car>/, settings `imu_key` and `gnss_key`), feeds them to `Estimator` on one worker
-thread, and publishes viena.estimator.state/1 on viena/<car>/estimator/state after every
+thread, and publishes viena.estimator.state/2 on viena/<car>/estimator/state after every
 IMU sample it uses (after every fix when there is no IMU). A waypoint put on
 viena/<car>/estimator/waypoint as {"lat": .., "lon": ..} (msgpack or JSON text; {} clears
 it) adds bearing, distance and heading error to the state. Thin on purpose: everything
-the estimator does is in estimator.py and runs the same offline.
+the estimator does is in estimator.py (and the modules it wires) and runs the same offline.
 """
 from __future__ import annotations
 
@@ -123,8 +123,22 @@ class EstimatorService(Service):
         if now - self._last_health >= 1.0:
             self._last_health = now
             for name in ("mode", "heading_source", "gnss_live", "gnss_used", "gnss_rejected",
-                         "input_rejected", "last_reset"):
+                         "input_rejected", "last_reset", "sigma_h_m", "imu_time_offset_hint_s"):
                 self.health.set(name, state[name])
+            self._report_clock(state["imu_time_offset_hint_s"])
+
+    def _report_clock(self, hint_s) -> None:
+        """Once, when the fixes start pointing at an IMU clock offset (and when they stop)."""
+        rounded = None if hint_s is None else round(hint_s, 2)
+        if rounded == getattr(self, "_clock_hint", None):
+            return
+        self._clock_hint = rounded
+        if hint_s is None:
+            self.log.info("the IMU's stamps agree with the GNSS clock again")
+        else:
+            self.log.warning("the GNSS course turns %.0f ms %s the gyro by the IMU's stamps: the IMU "
+                             "clock looks off; its time_offset_s should be about %+.3f s",
+                             abs(hint_s) * 1e3, "before" if hint_s < 0 else "after", hint_s)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -69,6 +69,8 @@ class Standstill:
             self.gyro_rms = min(GYRO_CEILING_RADPS, max(GYRO_FLOOR_RADPS, gyro))
         if self.accel_rms is None:
             self.accel_rms = min(ACCEL_CEILING_MPS2, max(ACCEL_FLOOR_MPS2, accel))
+        # the smoothed figures start from what the first seconds showed
+        self._g2, self._a2 = sum(var[:3]), sum(var[3:])
 
     def update(self, dt, gx, gy, gz, fx, fy, fz, rot, gravity, speed_still, attitude) -> None:
         """One IMU sample: rate (bias-corrected) and specific force in body axes; `rot` the

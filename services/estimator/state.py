@@ -1,23 +1,31 @@
-"""viena.estimator.state/1: the car's estimated state, on viena/<car>/estimator/state.
+"""viena.estimator.state/2: the car's estimated state, on viena/<car>/estimator/state.
 
 SI units, angles in rad except the waypoint guidance, which keeps the Titans report's
-degrees (as its name says). Frames per design §5: positions and velocities in the local
-ENU frame at `origin`, attitude body -> ENU (body x right, y forward, z up), Euler Z-Y-X
-as seed eq. 5.4 (yaw about up, pitch about the body's forward y axis, roll about its
-right x axis), yaw counter-clockwise from north.
+degrees (as its name says). Frames (docs/frames.md): positions and velocities in the local
+ENU frame at `origin`, attitude body -> ENU (body x right, y forward, z up), yaw about
+up (counter-clockwise from north), pitch about the right axis (nose up > 0), roll about
+the forward axis (right side down > 0), in the aircraft order yaw, pitch, roll:
+R = Rz(yaw) Rx(pitch) Ry(roll) (services/estimator/angles.py).
+
+Version 2 (issue 13): roll and pitch are named by the axes they turn about (in /1
+`pitch_rad` turned about forward and `roll_rad` about right, Z-Y-X), and the position's
+uncertainty comes as the full covariance, per axis, horizontally and vertically.
 """
 from __future__ import annotations
 
 import math
 
-from viena.common.display import fmt_deg, fmt_num, fmt_unit, fmt_vec, vector
+from viena.common.display import fmt_deg, fmt_num, fmt_unit, fmt_vec, number, vector
 from viena.common.schema import F, Schema
 
 MODES = ("waiting", "aligning", "attitude", "navigating", "coasting", "gnss_only")
 HEADING_SOURCES = ("none", "mag", "course", "mag+course")
 ORIGIN_SOURCES = ("none", "config", "first_fix")
+#: chi-square for 2 degrees of freedom, 95 %: the 95 % horizontal ellipse is this many
+#: sigma^2 (its semi-major axis 2.45 sigma_h_m)
+CHI2_2D_95 = 5.991
 
-STATE = Schema("viena.estimator.state/1", {
+STATE = Schema("viena.estimator.state/2", {
     "t": F.time,                          # time the state refers to (last input used), ns UTC
     "seq": F.int,
     # what the estimator is doing
@@ -26,6 +34,7 @@ STATE = Schema("viena.estimator.state/1", {
     "heading_valid": F.bool,              # yaw known
     "heading_source": F.enum(*HEADING_SOURCES),
     "position_valid": F.bool,             # position and velocity initialised from GNSS
+    "standstill": F.bool,                 # the car stands (zero-velocity updates, gyro bias)
     "imu_live": F.bool,
     "gnss_live": F.list(F.str),           # GNSS units heard from lately
     # where
@@ -33,6 +42,10 @@ STATE = Schema("viena.estimator.state/1", {
     "origin_source": F.enum(*ORIGIN_SOURCES),
     "enu_m": F.vec(3),
     "enu_var_m2": F.vec(3),               # diagonal of the position covariance
+    "enu_cov_m2": F.vec(6),               # the covariance: [ee, en, eu, nn, nu, uu]
+    "enu_sigma_m": F.vec(3),              # per axis: sqrt of enu_var_m2
+    "sigma_h_m": F.float,                 # semi-major axis of the horizontal 1-sigma ellipse
+    "sigma_v_m": F.float,                 # vertical
     "lat_deg": F.optional(F.float),
     "lon_deg": F.optional(F.float),
     "height_m": F.optional(F.float),      # ellipsoidal
@@ -41,10 +54,10 @@ STATE = Schema("viena.estimator.state/1", {
     "speed_mps": F.float,                 # horizontal
     # attitude
     "quat": F.vec(4),                     # body -> ENU, Hamilton, [w, x, y, z]
-    "yaw_rad": F.float,
-    "pitch_rad": F.float,
-    "roll_rad": F.float,
-    "att_var_rad2": F.vec(3),             # [yaw, pitch, roll], see README
+    "yaw_rad": F.float,                   # about up, CCW from north: the forward axis's heading
+    "pitch_rad": F.float,                 # about the right axis (x): nose up > 0
+    "roll_rad": F.float,                  # about the forward axis (y): right side down > 0
+    "att_var_rad2": F.vec(3),             # [yaw, pitch, roll]
     "rate_body_radps": F.vec(3),          # bias-corrected gyro
     "accel_bias_mps2": F.vec(3),          # body axes
     "gyro_bias_radps": F.vec(3),
@@ -54,6 +67,7 @@ STATE = Schema("viena.estimator.state/1", {
     "input_rejected": F.map,              # reason -> count (bad or late input)
     "counts": F.map,                      # imu, gnss, imu_gaps, resets, ...
     "last_reset": F.optional(F.str),      # why the filter last reset itself
+    "imu_time_offset_hint_s": F.optional(F.float),  # the IMU's time_offset_s the fixes point at
     # navigation to a waypoint (Titans report)
     "waypoint": F.optional(F.vec(2)),     # [lat_deg, lon_deg]
     "wp_bearing_deg": F.optional(F.float),          # from north, clockwise, +-180
@@ -76,16 +90,25 @@ def monitor_view(state: dict) -> dict[str, str]:
     var = vector(state.get("enu_var_m2"), 3)
     att = vector(state.get("att_var_rad2"), 3)
     yaw_sigma = "" if att is None else f" ± {math.degrees(math.sqrt(max(att[0], 0))):.1f}°"
+    sigma_h, sigma_v = number(state.get("sigma_h_m")), number(state.get("sigma_v_m"))
+    if sigma_h is None and var is not None:       # an older state: from the diagonal
+        sigma_h, sigma_v = math.sqrt(max(var[0], var[1], 0)), math.sqrt(max(var[2], 0))
     cells = {
         "mode": str(state.get("mode", "-")),
         "position ENU m": fmt_vec(state.get("enu_m")),
-        "σ pos": "-" if var is None else f"{math.sqrt(max(var[0], 0) + max(var[1], 0)):.2f} m",
+        "σ pos": "-" if sigma_h is None else f"{sigma_h:.2f} m",
+        "σ h/v": "-" if sigma_h is None or sigma_v is None else f"{sigma_h:.2f} / {sigma_v:.2f} m",
         "speed": fmt_unit(state.get("speed_mps"), "m/s"),
         "yaw": fmt_deg(state.get("yaw_rad")) + yaw_sigma,
+        "pitch / roll": f"{fmt_deg(state.get('pitch_rad'))} / {fmt_deg(state.get('roll_rad'))}",
         "heading": f"{state.get('heading_source', '-')}"
                    + ("" if state.get("heading_valid") is not False else " (not valid)"),
         "gnss used": fmt_num(state.get("gnss_used")),
     }
+    hint = number(state.get("imu_time_offset_hint_s"))
+    if hint is not None:
+        cells["IMU clock"] = (f"stamps {abs(hint) * 1e3:.0f} ms {'late' if hint < 0 else 'early'}: "
+                              f"time_offset_s = {hint:+.3f}?")
     if state.get("waypoint") is not None:
         cells["waypoint"] = (f"{fmt_num(state.get('wp_distance_m'), 1)} m at "
                              f"{fmt_num(state.get('wp_bearing_deg'), 1)}°, "

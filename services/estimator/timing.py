@@ -36,13 +36,15 @@ PAIR_S, MAX_GAP_S = 1.0, 1.6
 SIGNIFICANT_CHI2 = 25.0
 #: ... and is at least this large (s)
 SIGNIFICANT_S = 0.03
-#: the gyro's yaw kept, s (the largest lag and fix gap, and then some)
+#: the gyro's yaw kept, s (the largest lag and fix gap, and then some), on a grid of
 _KEEP_S = 3.5
+_GRID_NS = 20_000_000
 
 
 class OffsetHint:
     def __init__(self):
-        self._gyro: deque = deque()         # (stamp ns, yaw integrated from the gyro, rad)
+        self._stamps: deque = deque()       # stamps (ns) on a GRID_NS grid ...
+        self._yaws: deque = deque()         # ... and the yaw integrated from the gyro then, rad
         self._yaw = 0.0
         self._courses: deque = deque()      # (t ns, course rad, variance) of recent fixes
         self._waiting: deque = deque()      # (t0, t1, course turned, variance) to compare
@@ -52,10 +54,14 @@ class OffsetHint:
     def gyro(self, t: int, yaw_rate: float, dt: float) -> None:
         """One IMU sample: the yaw rate (rad/s, bias-corrected) over the dt before stamp t."""
         self._yaw += yaw_rate * dt
-        g = self._gyro
-        g.append((t, self._yaw))
-        while g and g[0][0] < t - _KEEP_S * 1e9:
-            g.popleft()
+        stamps = self._stamps
+        if stamps and t - stamps[-1] < _GRID_NS:
+            return
+        stamps.append(t)
+        self._yaws.append(self._yaw)
+        while stamps[0] < t - _KEEP_S * 1e9:
+            stamps.popleft()
+            self._yaws.popleft()
         # a pair of courses is compared once the gyro has passed its latest lag
         waiting = self._waiting
         while waiting and waiting[0][1] + LAGS_S[-1] * 1e9 <= t:
@@ -81,11 +87,10 @@ class OffsetHint:
     def _compare(self, t0: int, t1: int, turned: float, var: float) -> None:
         """The course turned by `turned` (variance var) from t0 to t1: how far each lag's
         gyro interval disagrees."""
-        g = self._gyro
-        stamps = np.fromiter((s for s, _ in g), float, len(g))
-        if len(stamps) < 2 or t0 + LAGS_S[0] * 1e9 < stamps[0]:
+        if len(self._stamps) < 2 or t0 + LAGS_S[0] * 1e9 < self._stamps[0]:
             return                          # the gyro does not cover every lag: skip it
-        yaws = np.fromiter((y for _, y in g), float, len(g))
+        stamps = np.fromiter(self._stamps, float, len(self._stamps))
+        yaws = np.fromiter(self._yaws, float, len(self._yaws))
         lags = LAGS_S * 1e9
         gyro = np.interp(t1 + lags, stamps, yaws) - np.interp(t0 + lags, stamps, yaws)
         miss = turned - gyro

@@ -16,23 +16,56 @@ import time
 KEY = "viena/{car}/steering/{name}"
 
 
+class ConflictingReplies(RuntimeError):
+    """More than one process answered a steering command, or not the one that granted the
+    lease: something impersonates the steering service, and no answer can be trusted."""
+
+
+def _session_of(reply) -> str:
+    replier = reply.replier_id
+    return str(replier.zid) if replier is not None else "unknown"
+
+
 class SteeringClient:
-    """The owner's side of the steering API on an open zenoh session."""
+    """The owner's side of the steering API on an open zenoh session.
+
+    Every question goes to every queryable (zenoh's QueryTarget.ALL, no consolidation), so
+    a second process answering the steering keys is seen rather than silently winning: the
+    answers must come from exactly one replier, and once armed from the one that granted
+    the lease. Anything else raises ConflictingReplies."""
 
     def __init__(self, session, car: str = "elettra", timeout_s: float = 2.0):
         self.session, self.car, self.timeout_s = session, car, timeout_s
         self.lease: str | None = None
+        self.replier: str | None = None        # the steering service that granted the lease
+        self.last_replier: str | None = None
 
     def ask(self, name: str, payload: dict) -> dict:
+        import zenoh
+
         replies = list(self.session.get(KEY.format(car=self.car, name=name),
-                                        payload=json.dumps(payload).encode(), timeout=self.timeout_s))
-        if not replies or replies[0].ok is None:
+                                        payload=json.dumps(payload).encode(), timeout=self.timeout_s,
+                                        target=zenoh.QueryTarget.ALL,
+                                        consolidation=zenoh.ConsolidationMode.NONE))
+        # the replying session (its zenoh id), not the queryable: one service has several
+        answers = [(_session_of(r), r.ok) for r in replies if r.ok is not None]
+        if not answers:
             return {"status": "rejected", "reason": f"no answer on {name}: is viena-steering running?"}
-        return json.loads(replies[0].ok.payload.to_bytes())
+        repliers = sorted({replier for replier, _ in answers})
+        if len(repliers) > 1:
+            raise ConflictingReplies(f"{len(repliers)} processes answered steering/{name} "
+                                     f"({', '.join(repliers)}): only the steering service may")
+        if self.replier is not None and repliers[0] != self.replier:
+            raise ConflictingReplies(f"steering/{name} was answered by {repliers[0]}, not by "
+                                     f"{self.replier}, which granted the lease")
+        self.last_replier = repliers[0]
+        return json.loads(answers[0][1].payload.to_bytes())
 
     def arm(self) -> dict:
         reply = self.ask("arm", {"arm": True})
         self.lease = reply.get("lease")
+        if self.lease:
+            self.replier = self.last_replier
         return reply
 
     def setpoint(self, angle_deg: float) -> dict:
@@ -40,7 +73,7 @@ class SteeringClient:
 
     def disarm(self) -> dict:
         reply = self.ask("arm", {"arm": False, "lease": self.lease})
-        self.lease = None
+        self.lease, self.replier = None, None
         return reply
 
     def estop(self) -> dict:
@@ -93,6 +126,10 @@ def main(argv=None) -> int:
             print(json.dumps(client.hold(args.angle_deg, args.seconds, args.rate_hz)))
         finally:
             print(json.dumps(client.disarm()))
+    except ConflictingReplies as exc:
+        print(f"viena-steer: stopped: {exc}", file=sys.stderr)
+        session.put(KEY.format(car=car, name="estop"), b"{}")     # the real service takes puts too
+        return 3
     finally:
         session.close()
     return 0

@@ -13,6 +13,12 @@ Payloads are msgpack maps or JSON text; a reply comes back in the query's encodi
 zenoh callbacks decode the payload and hand it to the controller, which decides at once in
 the callback's thread (microseconds, a frame or two on the bus; nothing queues); an arm is
 answered once the drive is enabled.
+
+A command acts only when it was meant: a query whose key expression is exactly the
+command's key, with a payload that parses as a map (bounded in size and depth before
+parsing). A wildcard query (`zenoh get 'viena/**'`) gets a description of the command and
+nothing happens; an empty or malformed payload gets the reason. An e-stop is `{}` (or any
+map) on steering/estop, by put or query.
 """
 from __future__ import annotations
 
@@ -22,6 +28,7 @@ from dataclasses import dataclass, replace
 import zenoh
 
 from viena.common.errors import PayloadError
+from viena.common.log import Throttled
 from viena.common.payload import parse_payload, reply_bytes
 from viena.common.service import Service, run_service
 from viena.common.settings import part
@@ -49,6 +56,10 @@ class SteeringService(Service):
     settings_class = SteeringSettings
     default_unit = None
 
+    def __init__(self, args):
+        super().__init__(args)
+        self._refusals = Throttled(self.log, "refused")
+
     def start(self) -> None:
         s = self.settings
         if self.log.getEffectiveLevel() > logging.DEBUG:
@@ -63,7 +74,7 @@ class SteeringService(Service):
                                              on_state=self._publish_state)
         key = lambda name: self.keys.key("steering", name)        # noqa: E731
         for name in ("arm", "setpoint", "calibration"):
-            self.declare_queryable(key(name), self._queued(name))
+            self.declare_queryable(key(name), self._command(name, key(name)))
         self.declare_queryable(key("estop"), self._estop_query)
         self.declare_subscriber(key("setpoint"), self._setpoint_put)
         self.declare_subscriber(key("estop"), self._estop_put)
@@ -74,36 +85,51 @@ class SteeringService(Service):
             self.controller.stop()
 
     # -- zenoh callbacks: decode, decide, never wait ----------------------------------------
-    def _queued(self, kind: str):
+    def _command(self, kind: str, own_key: str):
         def on_query(query: zenoh.Query) -> None:
             data, encoding = _payload_of(query)
-            self.health.count(kind)
-            try:
-                payload = parse_payload(data, encoding) if (data or kind != "calibration") else {}
-            except PayloadError as exc:
-                self.health.error("bad_payload")
-                self.log.warning("%s query rejected: %s", kind, exc)
-                _reply(query, {"status": REJECTED, "reason": str(exc)}, encoding, data)
+            if str(query.key_expr) != own_key:
+                self.health.count("discovery_queries")
+                _reply(query, describe(kind, own_key), encoding, data, own_key)
                 return
-            self.controller.submit(kind, payload, lambda answer: _reply(query, answer, encoding, data))
+            self.health.count(kind)
+            payload = self._parse(kind, data, encoding, query)
+            if payload is not None:
+                self.controller.submit(kind, payload, lambda answer: _reply(query, answer, encoding, data))
         return on_query
+
+    def _parse(self, kind: str, data: bytes, encoding: str | None, query=None) -> dict | None:
+        """The command's map, or None after saying why (to the asker, if it asked)."""
+        if kind == "calibration" and not data:
+            return {}                                 # an empty question: the status
+        try:
+            return parse_payload(data, encoding)
+        except PayloadError as exc:
+            self.health.error("bad_payload")
+            self._refusals.log(f"{kind}: {str(exc).split(':')[0]}", str(exc))
+            if query is not None:
+                _reply(query, {"status": REJECTED, "reason": str(exc)}, encoding, data)
+            return None
 
     def _setpoint_put(self, sample: zenoh.Sample) -> None:
         self.health.count("setpoint")
-        try:
-            payload = parse_payload(sample.payload.to_bytes(), str(sample.encoding))
-        except PayloadError as exc:
-            self.health.error("bad_payload")
-            self.log.warning("setpoint put rejected: %s", exc)
-            return
-        self.controller.submit("setpoint", payload, None)
+        payload = self._parse("setpoint", sample.payload.to_bytes(), str(sample.encoding))
+        if payload is not None:
+            self.controller.submit("setpoint", payload, None)
 
     def _estop_query(self, query: zenoh.Query) -> None:
         data, encoding = _payload_of(query)
-        _reply(query, self.controller.estop(), encoding, data)
+        own = self.keys.key("steering", "estop")
+        if str(query.key_expr) != own:
+            self.health.count("discovery_queries")
+            _reply(query, describe("estop", own), encoding, data, own)
+            return
+        if self._parse("estop", data, encoding, query) is not None:
+            _reply(query, self.controller.estop(), encoding, data)
 
     def _estop_put(self, sample: zenoh.Sample) -> None:
-        self.controller.estop()
+        if self._parse("estop", sample.payload.to_bytes(), str(sample.encoding)) is not None:
+            self.controller.estop()
 
     def _publish_state(self, state: dict) -> None:
         if self._state_pub.put(state):
@@ -119,9 +145,25 @@ def _payload_of(query: zenoh.Query) -> tuple[bytes, str | None]:
     return data, encoding
 
 
-def _reply(query: zenoh.Query, answer: dict, encoding: str | None, data: bytes) -> None:
+def _reply(query: zenoh.Query, answer: dict, encoding: str | None, data: bytes,
+           key: str | None = None) -> None:
     payload, reply_encoding = reply_bytes(answer, encoding, data)
-    query.reply(query.key_expr, payload, encoding=zenoh.Encoding(reply_encoding))
+    query.reply(key or query.key_expr, payload, encoding=zenoh.Encoding(reply_encoding))
+
+
+COMMANDS = {
+    "arm": ('{"arm": true} -> a lease; {"arm": false, "lease": L} to disarm', "pilot"),
+    "setpoint": ('{"angle_deg": x, "lease": L} (or angle_rad), as a query or a put', "pilot"),
+    "calibration": ('{} for the status, {"restart": true} (disarmed), {"finish": true}', "pilot"),
+    "estop": ("{} (any map), as a put or a query: quick stop now, disarm", "pilot or observer"),
+}
+
+
+def describe(kind: str, key: str) -> dict:
+    """What a wildcard query gets instead of an action: how to use the command."""
+    usage, who = COMMANDS[kind]
+    return {"status": "description", "key": key, "usage": usage, "who": who,
+            "note": "nothing was done: commands act only on a query of this exact key"}
 
 
 def main(argv=None) -> int:

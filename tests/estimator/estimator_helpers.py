@@ -6,7 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from viena.common.rotation import euler_from_quat, wrap_angle
+from viena.common.rotation import wrap_angle
+from viena.services.estimator.angles import yaw_pitch_roll
 from viena.services.estimator.estimator import Estimator
 from benchmarks.simdrive import Drive, DriveSamples
 from viena.services.estimator.state import STATE
@@ -77,7 +78,7 @@ def run(samples: list, settings: dict, every: int = 4, check_schema: bool = Fals
             STATE.encode(dict(state))
         if not state["position_valid"]:
             continue
-        yaw, pitch, roll = euler_from_quat(truth.quat)
+        yaw, pitch, roll = yaw_pitch_roll(truth.quat)
         rows.append((truth.t_s, *(np.array(state["enu_m"]) - truth.enu_m),
                      *(np.array(state["vel_enu_mps"]) - truth.vel_enu_mps),
                      wrap_angle(state["yaw_rad"] - yaw), state["pitch_rad"] - pitch,

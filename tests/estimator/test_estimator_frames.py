@@ -15,6 +15,8 @@ from hypothesis import given, settings, strategies as st
 from viena.common.rotation import (euler_from_quat, euler_to_matrix, quat_from_euler,
                                    quat_multiply, quat_to_matrix)
 from viena.common.geodesy import LocalFrame
+from viena.services.estimator.angles import (forward_yaw, quat_from_yaw_pitch_roll,
+                                             tilt_from_specific_force, yaw_pitch_roll)
 from viena.services.estimator.heading import course_yaw
 from viena.services.estimator.madgwick import attitude_from_vectors
 from viena.services.estimator.navigation import (bearing_distance, compass_heading_deg,
@@ -216,3 +218,45 @@ def test_bad_waypoints_are_refused_with_a_reason(payload):
     with pytest.raises(ValueError) as exc:
         waypoint_from(payload)
     assert str(exc.value)
+
+
+# -- the state's angles (viena.estimator.state/2, issue 13 item 6) ---------------------------------
+@settings(max_examples=100, deadline=None)
+@given(angles, tilts, angles)
+def test_state_angles_are_yaw_then_pitch_about_right_then_roll_about_forward(yaw, pitch, roll):
+    c, s = math.cos, math.sin
+    rz = np.array([[c(yaw), -s(yaw), 0], [s(yaw), c(yaw), 0], [0, 0, 1]])
+    rx = np.array([[1, 0, 0], [0, c(pitch), -s(pitch)], [0, s(pitch), c(pitch)]])    # about right
+    ry = np.array([[c(roll), 0, s(roll)], [0, 1, 0], [-s(roll), 0, c(roll)]])        # about forward
+    q = quat_from_yaw_pitch_roll(yaw, pitch, roll)
+    np.testing.assert_allclose(quat_to_matrix(q), rz @ rx @ ry, atol=1e-12)
+    np.testing.assert_allclose(yaw_pitch_roll(q), (yaw, pitch, roll), atol=1e-9)
+    r = quat_to_matrix(q)
+    # pitch is the forward axis's elevation, yaw its heading: whatever the roll
+    forward = r[:, 1]
+    assert math.asin(forward[2]) == pytest.approx(pitch, abs=1e-9)
+    assert abs(math.remainder(forward_yaw(r.ravel()) - yaw, math.tau)) < 1e-9
+    assert tilt_from_specific_force(*(r.T @ [0, 0, 9.8])) == pytest.approx((pitch, roll), abs=1e-9)
+
+
+def test_nose_up_is_positive_pitch_and_right_side_down_is_positive_roll():
+    nose_up = quat_from_yaw_pitch_roll(0.0, math.radians(5), 0.0)
+    assert (quat_to_matrix(nose_up) @ [0, 1, 0])[2] > 0          # forward points up
+    right_down = quat_from_yaw_pitch_roll(0.0, 0.0, math.radians(5))
+    assert (quat_to_matrix(right_down) @ [1, 0, 0])[2] < 0       # right points down
+
+
+@pytest.mark.parametrize("pitch_deg, roll_deg", [(4.0, 0.0), (0.0, 3.0), (-2.0, 1.5)])
+def test_the_estimators_state_names_the_parked_cars_tilt_by_its_axes(pitch_deg, roll_deg):
+    from viena.services.estimator.estimator import Estimator
+
+    q = quat_from_yaw_pitch_roll(0.3, math.radians(pitch_deg), math.radians(roll_deg))
+    f = quat_to_matrix(q).T @ [0.0, 0.0, 9.80665]
+    est = Estimator()
+    for k in range(300):                                          # 3.6 s parked, no field
+        est.add_imu({"t": 1_717_236_000_000_000_000 + k * 12_121_212, "accel_mps2": list(f),
+                     "gyro_radps": [0.0, 0.0, 0.0], "mag_T": None})
+    s = est.state()
+    assert s["aligned"]
+    assert math.degrees(s["pitch_rad"]) == pytest.approx(pitch_deg, abs=0.05)
+    assert math.degrees(s["roll_rad"]) == pytest.approx(roll_deg, abs=0.05)

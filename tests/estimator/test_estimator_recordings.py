@@ -29,7 +29,7 @@ def test_static_alignment_on_the_parked_car_gives_stable_roll_and_pitch(path):
         assert est.add_imu(s)
         state = est.state()
         if state["aligned"]:
-            tilt.append((state["pitch_rad"], state["roll_rad"]))
+            tilt.append((state["roll_rad"], state["pitch_rad"]))     # about forward, about right
     assert state["mode"] == "attitude" and not state["position_valid"]
     tilt = np.degrees(np.array(tilt))
     assert len(tilt) > 0.9 * len(samples)
@@ -39,9 +39,9 @@ def test_static_alignment_on_the_parked_car_gives_stable_roll_and_pitch(path):
     # and right: the direction of the mean specific force (the quantised readings make
     # Madgwick's fixed point a median rather than a mean: a fifth of a degree apart)
     f = np.mean([s["accel_mps2"] for s in samples], axis=0)
-    pitch = math.degrees(math.atan2(-f[0], math.hypot(f[1], f[2])))
-    roll = math.degrees(math.atan2(f[1], f[2]))
-    assert tilt.mean(axis=0) == pytest.approx((pitch, roll), abs=0.3)
+    roll = math.degrees(math.atan2(-f[0], f[2]))                  # state/2: R = Rz Rx(pitch) Ry(roll)
+    pitch = math.degrees(math.atan2(f[1], math.hypot(f[0], f[2])))
+    assert tilt.mean(axis=0) == pytest.approx((roll, pitch), abs=0.3)
     # the car leans about 1.5 deg to its right and 3.4 deg nose down (as the board is mounted)
     assert tilt.mean(axis=0) == pytest.approx((1.5, -3.4), abs=0.3)
 

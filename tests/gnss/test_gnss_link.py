@@ -19,7 +19,7 @@ from viena.services.gnss.model.fix import fix_from_bestxyz, fix_from_nmea
 from viena.services.gnss.simulator import NovatelTwin
 from viena.common.twin.serial_port import SerialEndpoint
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(60)]  # receivers and twins talk in real time
 
 
 @pytest.fixture

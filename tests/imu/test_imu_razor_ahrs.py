@@ -71,6 +71,7 @@ def test_text_frames_need_all_three_lines():
     assert d.stats.bad_frames == 1
 
 
+@pytest.mark.slow  # the twin boots in real time
 @pytest.mark.parametrize("output", ["binary", "text"])
 def test_driver_synchronises_with_the_twin_through_its_boot(output):
     board = RazorBoard(mag_noise_counts=(0, 0, 0), accel_noise_lsb=(0, 0, 0), gyro_noise_dps=(0, 0, 0))
@@ -91,6 +92,7 @@ def test_driver_synchronises_with_the_twin_through_its_boot(output):
     assert f.gyro_dps[2] == pytest.approx(np.degrees(0.2), abs=0.1)
 
 
+@pytest.mark.slow  # waits out the sync timeouts
 def test_silence_is_a_sync_error():
     from viena.services.imu.simulator import RazorTwin          # the VIENA firmware never answers
     endpoint = SerialEndpoint(RazorTwin(lambda: fixed_truth(yaw=0.3, gyro=(0, 0, 0.1)), boot_s=0.0)).start()

@@ -15,7 +15,7 @@ from vienatest import VIENA, viena  # noqa: F401  (the laptop tests import them 
 TRUTH_KEY = "viena/elettra/sim/truth"
 SIM_HEALTH_KEY = "viena/elettra/sim/health"
 FIX_ENCODING = "application/msgpack;viena.gnss.fix/1"
-STATE_ENCODING = "application/msgpack;viena.estimator.state/1"
+STATE_ENCODING = "application/msgpack;viena.estimator.state/2"
 STEERING_ENCODING = "application/msgpack;viena.steering.state/1"
 TRUTH_ENCODING = "application/msgpack;viena.sim.truth/1"
 
@@ -105,6 +105,8 @@ def _state(truth, rng, seq: int) -> dict:
             "heading_valid": True, "heading_source": "course", "position_valid": True,
             "imu_live": True, "gnss_live": ["gnss0"], "origin": list(truth.origin),
             "origin_source": "config", "enu_m": enu, "enu_var_m2": [0.04, 0.04, 0.09],
+            "enu_cov_m2": [0.04, 0.0, 0.0, 0.04, 0.0, 0.09], "enu_sigma_m": [0.2, 0.2, 0.3],
+            "sigma_h_m": 0.2, "sigma_v_m": 0.3, "standstill": False, "imu_time_offset_hint_s": None,
             "vel_enu_mps": truth.vel_enu_mps.tolist(), "vel_var_m2ps2": [0.01] * 3,
             "speed_mps": float(truth.speed_mps), "quat": truth.quat.tolist(),
             "yaw_rad": truth.yaw_rad + float(rng.normal(0, 0.01)), "pitch_rad": 0.0, "roll_rad": 0.0,

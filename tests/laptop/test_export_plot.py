@@ -108,6 +108,8 @@ def test_plot_model_puts_every_source_on_one_map(drive):
     assert np.median(near) < 3.0                                # 1 m noise, 1.8 m lever arm
     _, est = model.estimator["enu"].array()
     assert len(est) == len(written["viena/elettra/estimator/state"])
+    _, sigma = model.estimator["sigma"].array()                 # state/2's sigma_h_m, sigma_v_m
+    assert sigma.tolist() == [[0.2, 0.3]] * len(est)
     t, yaw = model.truth["yaw"].array()
     assert yaw[-1] == pytest.approx(yaw_deg(truth[-1]["euler_rad"][0]))
     assert t[0] == 0.0 and t[-1] == pytest.approx(19.99)

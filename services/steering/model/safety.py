@@ -169,13 +169,16 @@ class Envelope:
         self._watchdog(now_s)                # a late setpoint finds the wheel already given up
         decision = self._judge(request, measured_deg, now_s, wall_ns)
         self.last = decision
-        self._log.record(decision)
+        self._log.record(decision, now_s)
         return decision
 
     def _judge(self, request, measured_deg, now, wall_ns) -> Decision:
         if isinstance(request, BadSetpoint):
             return Decision(REJECTED, request.reason, request.requested_deg)
         requested = request.angle_deg
+        absurd = self._absurd(requested)
+        if absurd:
+            return Decision(REJECTED, absurd, requested)
         if not self.armed:
             why = f"not armed ({self.tripped}): arm again" if self.tripped else "not armed"
             return Decision(REJECTED, why, requested)
@@ -197,6 +200,15 @@ class Envelope:
             reason = "; ".join(_LIMIT_TEXT[k](self.settings, lo, hi) for k in limits)
             return Decision(CLAMPED, reason, requested, target, goal, limits)
         return Decision(ACCEPTED, "", requested, target, goal)
+
+    def _absurd(self, requested: float) -> str | None:
+        """Finite but impossible: beyond twice the wheel's range is a bug, not a wish, and is
+        refused rather than clamped to full lock."""
+        reach = max(abs(a) for a in self.range_deg) if self.range_deg else ABSURD_UNCALIBRATED_DEG
+        if abs(requested) > 2 * reach:
+            return (f"absurd: {requested:.6g} deg is beyond twice the wheel's range "
+                    f"(+-{reach:.0f} deg): refused, not clamped")
+        return None
 
     def _stale(self, t_ns: int | None, wall_ns: int) -> str:
         if t_ns is None:
@@ -263,16 +275,25 @@ _LIMIT_TEXT = {
 }
 
 
+#: before calibration the range is unknown: no car's wheel turns 90 deg either way
+ABSURD_UNCALIBRATED_DEG = 45.0
+
+
 class DecisionLog:
     """Log each kind of decision once when it starts, with how often the previous repeated:
-    a 50 Hz stream of accepted setpoints is one line, every change of verdict is seen."""
+    a 50 Hz stream of accepted setpoints is one line, every change of verdict is seen. A
+    kind seen again within `interval_s` is counted, not logged, so a flood of refusals (two
+    clients alternating, 10,000 a second) costs one line per cause per interval."""
 
-    def __init__(self, logger: logging.Logger = log):
+    def __init__(self, logger: logging.Logger = log, interval_s: float = 10.0):
         self._log = logger
+        self.interval_s = interval_s
         self._key: tuple[str, str] | None = None
         self._repeats = 0
+        self._logged_at: dict[tuple[str, str], float] = {}
+        self._quiet: dict[tuple[str, str], int] = {}
 
-    def record(self, d: Decision) -> None:
+    def record(self, d: Decision, now_s: float) -> None:
         key = (d.status, d.reason.split(":")[0])
         if key == self._key:
             self._repeats += 1
@@ -280,7 +301,15 @@ class DecisionLog:
         if self._repeats:
             self._log.info("(previous decision repeated %d more times)", self._repeats)
         self._key, self._repeats = key, 0
+        last = self._logged_at.get(key)
+        if last is not None and now_s - last < self.interval_s:
+            self._quiet[key] = self._quiet.get(key, 0) + 1
+            return
+        self._logged_at[key] = now_s
+        quiet = self._quiet.pop(key, 0)
         level = logging.WARNING if d.status == REJECTED else logging.INFO
         target = "" if d.target_deg is None else f" -> target {d.target_deg:.2f} deg"
         asked = "" if d.requested_deg is None else f" {d.requested_deg:.2f} deg"
-        self._log.log(level, "setpoint%s %s%s%s", asked, d.status, f" ({d.reason})" if d.reason else "", target)
+        more = f" [{quiet} more like it since it was last logged]" if quiet else ""
+        self._log.log(level, "setpoint%s %s%s%s%s", asked, d.status, f" ({d.reason})" if d.reason else "",
+                      target, more)

@@ -1,0 +1,122 @@
+"""What a buggy or compromised client can do to `viena-steering` (issue 15): discovery
+queries, empty and absurd commands, huge and deep payloads, impostors and floods. Each of
+these acted on, crashed or starved the service before; now each gets a reason or nothing,
+and the owner keeps the wheel."""
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import msgpack
+import pytest
+import zenoh
+
+from test_steering_service import KEY, get, service, twin  # noqa: F401  (fixtures)
+from viena.services.steering.client import ConflictingReplies, SteeringClient
+
+pytestmark = pytest.mark.slow
+
+
+def arm(session) -> str:
+    return json.loads(get(session, "arm", b'{"arm": true}')[0])["lease"]
+
+
+def test_a_discovery_query_describes_and_never_stops_the_car(service, session):
+    proc, latest, until = service
+    lease = arm(session)
+    replies = [r.ok for r in session.get("viena/**", timeout=3.0) if r.ok is not None]
+    descriptions = [json.loads(r.payload.to_bytes()) if r.payload.to_bytes()[:1] == b"{"
+                    else msgpack.unpackb(r.payload.to_bytes()) for r in replies]
+    assert {d["key"].rsplit("/", 1)[1] for d in descriptions} == {"arm", "setpoint", "calibration", "estop"}
+    assert all(d["status"] == "description" for d in descriptions)
+    session.put(f"{KEY}/setpoint", json.dumps({"angle_deg": 1.0, "lease": lease}))
+    assert until(lambda st: st["armed"] and st["trip"] == ""), latest       # still the owner's
+
+
+def test_an_empty_estop_query_is_an_accident_a_map_is_an_estop(service, session):
+    proc, latest, until = service
+    arm(session)
+    data, _ = get(session, "estop", b"")
+    assert msgpack.unpackb(data)["status"] == "rejected"
+    assert until(lambda st: st["armed"]), latest
+    data, _ = get(session, "estop", b"{}")
+    assert until(lambda st: not st["armed"] and st["trip"] == "estop"), latest
+
+
+@pytest.mark.parametrize("angle", [1.8e19, 1e308, -1e300, 90.0])
+def test_absurd_setpoints_are_refused_not_clamped(service, session, angle):
+    proc, latest, until = service
+    lease = arm(session)
+    data, _ = get(session, "setpoint", json.dumps({"angle_deg": angle, "lease": lease}).encode())
+    reply = json.loads(data)
+    assert reply["status"] == "rejected" and reply["reason"].startswith("absurd"), reply
+
+
+def test_huge_and_deep_payloads_get_a_reason_not_a_traceback(service, session):
+    proc, latest, until = service
+    for payload, why in ((b'{"arm": "' + b"x" * 100_000 + b'"}', "bytes: at most"),
+                         (b"[" * 2000 + b"]" * 2000, "nested deeper"),
+                         (msgpack.packb({"a": [[[[[[[[[[1]]]]]]]]]]}), "nested deeper")):
+        for _ in range(50):
+            data, _ = get(session, "arm", payload)
+        reason = (json.loads(data) if data[:1] == b"{" else msgpack.unpackb(data))["reason"]
+        assert why in reason, reason
+    proc.terminate()
+    _, err = proc.communicate(timeout=10)
+    assert "Traceback" not in err and "RecursionError" not in err
+    refusals = [line for line in err.splitlines() if "refused: arm" in line]
+    assert 1 <= len(refusals) <= 3, refusals                     # once per cause, not 150 times
+
+
+def test_an_impostor_answering_the_steering_keys_is_caught(service, session, router):
+    from viena.common.config import load_zenoh_config
+
+    proc, latest, until = service
+    with zenoh.open(load_zenoh_config(mode="client", connect=[router])) as rogue:
+        def late_reply(query):
+            time.sleep(0.05)                                  # late: it would win consolidation
+            query.reply(query.key_expr, b'{"status": "accepted", "lease": "rogue"}')
+        q = rogue.declare_queryable(f"{KEY}/arm", late_reply)
+        time.sleep(0.3)
+        with pytest.raises(ConflictingReplies, match="2 processes answered steering/arm"):
+            SteeringClient(session).arm()
+        q.undeclare()
+
+
+def test_a_setpoint_flood_from_others_never_starves_the_owner(service, session, router):
+    from viena.common.config import load_zenoh_config
+
+    proc, latest, until = service
+    owner = SteeringClient(session)
+    assert owner.arm()["status"] == "accepted"
+    stop = threading.Event()
+
+    def flood():
+        with zenoh.open(load_zenoh_config(mode="client", connect=[router])) as s:
+            pub = s.declare_publisher(f"{KEY}/setpoint")
+            payload = json.dumps({"angle_deg": 5.0, "lease": "not-the-lease"}).encode()
+            while not stop.is_set():
+                for _ in range(100):
+                    pub.put(payload)
+                time.sleep(0.01)                      # ~10,000 puts/s from each
+    floods = [threading.Thread(target=flood) for _ in range(2)]
+    for f in floods:
+        f.start()
+    try:
+        replies = []
+        for k in range(60):                           # 3 s of the owner's stream at 20 Hz
+            replies.append(owner.setpoint(0.2 * (k % 2)))
+            time.sleep(0.05)
+    finally:
+        stop.set()
+        for f in floods:
+            f.join()
+    assert all(r["status"] in ("accepted", "clamped") for r in replies), [r for r in replies
+                                                                          if r["status"] == "rejected"][:3]
+    assert until(lambda st: st["armed"] and st["trip"] == ""), latest
+    owner.disarm()
+    proc.terminate()
+    _, err = proc.communicate(timeout=10)
+    flood_lines = [line for line in err.splitlines() if "not the owner" in line]
+    assert len(flood_lines) <= 3, len(flood_lines)
