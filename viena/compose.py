@@ -28,6 +28,7 @@ from viena.common.config import load_toml
 from viena.common.errors import ConfigError
 from viena.paths import compose_dir
 from viena.profile_security import SecurityRefusal, secure_environment
+from viena.profile_security import programs as programs_in
 from viena.runstate import (profiles, read_environment, run_dir, running_profiles,  # noqa: F401
                             state_root, supervisord_pid)
 
@@ -143,8 +144,9 @@ def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = 
           file=sys.stderr, flush=True)
     if detach:
         started = time.monotonic()
+        said_before = programs.log_sizes(profile, programs_in(conf))
         subprocess.run(cmd, env=_supervisor_env(env), check=True)
-        status = wait_running(profile)
+        status = wait_running(profile, said_before=said_before)
         if status == 0:
             print(f"viena: every program of {profile} is up ({time.monotonic() - started:.1f} s); "
                   f"`viena status`, `viena logs NAME`, `viena down`", file=sys.stderr)
@@ -190,10 +192,11 @@ def ctl(profile: str, *args: str, capture: bool = False) -> subprocess.Completed
                           capture_output=capture)
 
 
-def wait_running(profile: str, names: list[str] | None = None) -> int:
+def wait_running(profile: str, names: list[str] | None = None,
+                 said_before: dict[str, int] | None = None) -> int:
     """Like `docker compose up --wait`, and honest: once every program (or those named)
     has stayed up past its start, 0; else 1, having said which did not and why."""
-    return programs.report(profile, programs.wait_settled(profile, names))
+    return programs.report(profile, programs.wait_settled(profile, names, said_before))
 
 
 def status(profile: str) -> int:
@@ -224,10 +227,12 @@ def update(profile: str) -> int:
     its files, starts what was added, stops what was removed, leaves the rest running."""
     if not supervisord_pid(profile):
         raise ComposeError(f"profile '{profile}' is not up")
-    before = set(programs.known_programs(profile, profile_file(profile)))
+    conf = profile_file(profile)
+    before = set(programs.known_programs(profile, conf))
+    said_before = programs.log_sizes(profile, programs_in(conf))
     done = ctl(profile, "update")
-    added = sorted(set(programs.known_programs(profile, profile_file(profile))) - before)
-    return done.returncode or (wait_running(profile, added) if added else 0)
+    added = sorted(set(programs.known_programs(profile, conf)) - before)
+    return done.returncode or (wait_running(profile, added, said_before) if added else 0)
 
 
 def down(profile: str, timeout: float = 15.0) -> int:

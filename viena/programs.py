@@ -112,7 +112,7 @@ def wait_settled(profile: str, names: list[str] | None = None, said_before: dict
     said_before = dict(said_before or {})
     runs: dict[str, tuple[int, float]] = {}      # name -> (start time of its run, seen RUNNING at)
     spoke: dict[str, float] = {}                 # name -> when its log first grew
-    failed: dict[str, str] = {}
+    failed: dict[str, tuple[str, int | None]] = {}      # name -> (what, exit status then)
 
     def settled(name: str, now: float) -> bool:
         if name not in runs:
@@ -131,25 +131,24 @@ def wait_settled(profile: str, names: list[str] | None = None, said_before: dict
             if name not in spoke and _size(log_path(profile, name)) > said_before[name]:
                 spoke[name] = now
             if state in FAILED:
-                failed[name] = state
+                failed[name] = (state, info["exitstatus"])
             elif state == "RUNNING":
                 first = runs.get(name)
                 if first is None:
                     runs[name] = (info["start"], now)
                 elif first[0] != info["start"]:
-                    failed[name] = "restarted (it exited and supervisord started it again)"
+                    failed[name] = ("restarted (it exited and supervisord started it again)", None)
             elif name in runs:                          # left RUNNING: stopping, starting again
-                failed[name] = state
+                failed[name] = (state, None)
             # STOPPED or STARTING before its first RUNNING: not started yet, wait
         if all(i["name"] in failed or settled(i["name"], now) for i in infos) or now > end:
             break
         time.sleep(0.1)
     for info in infos:
         if info["name"] not in failed and not settled(info["name"], now):
-            failed[info["name"]] = f"{info['statename']}, not settled after {timeout:.0f} s"
-    by_name = {i["name"]: i for i in infos}
-    return [Failure(name, state, by_name[name].get("exitstatus"), last_lines(log_path(profile, name)))
-            for name, state in sorted(failed.items())]
+            failed[info["name"]] = (f"{info['statename']}, not settled after {timeout:.0f} s", None)
+    return [Failure(name, state, status, last_lines(log_path(profile, name)))
+            for name, (state, status) in sorted(failed.items())]
 
 
 def report(profile: str, failures: list[Failure]) -> int:
@@ -179,6 +178,8 @@ def start(profile: str, conf: Path, name: str) -> int:
     except xmlrpc.client.Fault as exc:
         if "ALREADY_STARTED" not in exc.faultString:
             raise ProgramError(f"{name}: {exc.faultString}") from None
+        print(f"{name}: already running (`viena restart {name}` restarts it)")
+        return 0
     status = report(profile, wait_settled(profile, [name], before))
     if status == 0:
         print(f"{name}: running")

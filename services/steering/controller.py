@@ -30,7 +30,7 @@ from viena.services.steering.model.actions import (JOBS, Command, Configure, Con
                                              SendTarget, WriteLimits)
 from viena.services.steering.model.calibration import Calibration, CalibrationSettings
 from viena.services.steering.model.core import ControllerSettings, Phase, SteeringCore
-from viena.services.steering.driver.emcy import Emcy
+from viena.services.steering.driver.emcy import Emcy, emcy_name
 from viena.services.steering.driver.epos import DriveError, EposDrive
 from viena.services.steering.model.requests import Request, parse_request
 from viena.services.steering.model.safety import REJECTED, Envelope
@@ -233,16 +233,22 @@ class SteeringController:
             return str(exc) or type(exc).__name__
         return ""
 
-    def _configure(self) -> tuple[str, str]:
-        """("", "") when configured; (why, "") when the drive refused or did not answer;
-        ("", why) when the link itself went away."""
+    def _configure(self) -> tuple[str, str, tuple[str, ...]]:
+        """("", "", history) when configured; (why, "", ()) when the drive refused or did
+        not answer; ("", why, ()) when the link itself went away. `history` names the
+        drive's last errors (0x1003), newest first."""
         try:
             self.drive.configure(limits_qc=None)
         except DriveError as exc:
-            return str(exc), ""
+            return str(exc), "", ()
         except Exception as exc:
-            return "", str(exc) or type(exc).__name__
-        return "", ""
+            return "", str(exc) or type(exc).__name__, ()
+        try:
+            history = tuple(emcy_name(code) for code in self.drive.error_history())
+        except DriveError as exc:
+            log.warning("could not read the drive's error history: %s", exc)
+            history = ()
+        return "", "", history
 
     def _write_limits(self, cal: Calibration) -> str:
         try:

@@ -120,3 +120,27 @@ def test_a_setpoint_flood_from_others_never_starves_the_owner(service, session, 
     _, err = proc.communicate(timeout=10)
     flood_lines = [line for line in err.splitlines() if "not the owner" in line]
     assert len(flood_lines) <= 3, len(flood_lines)
+
+
+def test_after_a_restart_the_service_says_why_the_drive_is_in_fault(service, session, twin, procs, router,
+                                                                      tmp_path):
+    from viena.services.steering.driver import ds402
+    from vienatest import wait_until
+
+    proc, latest, until = service
+    lease = arm(session)
+    for _ in range(10):
+        session.put(f"{KEY}/setpoint", json.dumps({"angle_deg": 2.0, "lease": lease}))
+        time.sleep(0.02)
+    proc.kill()                                  # the drive faults through its life guard
+    proc.wait(5)
+    assert wait_until(lambda: twin.twin.state == ds402.FAULT, 3.0)
+    states = []
+    sub = session.declare_subscriber(f"{KEY}/state", lambda s: states.append(s.payload.to_bytes()))
+    procs.python("-m", "viena.services.steering.service", "--connect", router, "--config",
+                 tmp_path / "steering.toml", "--interface", "slcan", "--channel", twin.url,
+                 "--log-level", "WARNING")
+    from viena.services.steering.model.state import STATE
+    assert wait_until(lambda: states and "Life Guard" in (STATE.decode(states[-1])["fault"] or ""), 20.0), \
+        STATE.decode(states[-1]) if states else "no state"
+    sub.undeclare()

@@ -222,6 +222,12 @@ class EposDrive:
         except (canopen.SdoAbortedError, canopen.SdoCommunicationError) as exc:
             raise DriveError(f"0x{index:04X}:{subindex}: {exc}") from None
 
+    def error_history(self, depth: int = 5) -> list[int]:
+        """The drive's own record of its last errors (0x1003, newest first), as EMCY codes:
+        why it is in fault when the EMCY went by while nobody listened (a service restart)."""
+        count = min(self.read(0x1003, 0), depth)
+        return [self.read(0x1003, k) & 0xFFFF for k in range(1, count + 1)]
+
     def _map_process_data(self) -> None:
         """The PDO layout this driver uses, built locally (saved to the drive by configure)."""
         node, nid = self.node, self.settings.node_id

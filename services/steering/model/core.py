@@ -77,6 +77,7 @@ class SteeringCore:
         self.link_ok = False
         self.emcy = ""                  # the last EMCY, as text
         self.fault = ""                 # the drive's current fault, as text ("" when none)
+        self.history: tuple[str, ...] = ()   # the drive's last errors (0x1003), newest first
         self.target_qc = 0              # the target the drive was last sent
         self.arming: ArmSequence | None = None
         self._checking: Calibration | None = None     # being written to the drive
@@ -103,9 +104,11 @@ class SteeringCore:
             self._configure()
         return self._take()
 
-    def configured(self, now: float, error: str = "", link_error: str = "") -> list:
-        """Configuration done; or the drive refused or did not answer (`error`, retried
-        later); or the link itself went away (`link_error`, reconnect now)."""
+    def configured(self, now: float, error: str = "", link_error: str = "",
+                   history: tuple[str, ...] = ()) -> list:
+        """Configuration done (with the drive's error history, newest first); or the drive
+        refused or did not answer (`error`, retried later); or the link itself went away
+        (`link_error`, reconnect now)."""
         if link_error:
             log.warning("drive configuration failed: %s", link_error)
             self._connect()
@@ -114,6 +117,9 @@ class SteeringCore:
             self._backoff.failed(now)
         else:
             self._backoff.succeeded()
+            self.history = tuple(history)
+            if history:
+                log.info("drive's error history, newest first: %s", "; ".join(history))
             self.watch.configured_at = now
             self.recorder.reset()
             self.phase = Phase.CALIBRATING
@@ -441,7 +447,11 @@ class SteeringCore:
         """The drive's active fault: its EMCY, or that it reports one without an EMCY."""
         if self.fault:
             return self.fault
-        return "drive in fault (no EMCY seen)" if self.fresh(fb, now) and ds402.is_fault(fb.statusword) else ""
+        if not (self.fresh(fb, now) and ds402.is_fault(fb.statusword)):
+            return ""
+        if self.history:
+            return f"drive in fault: {self.history[0]} (its error history; no EMCY seen)"
+        return "drive in fault (no EMCY seen)"
 
     def calibration_state(self) -> dict:
         """The `calibration` field of the state and of calibration replies."""
