@@ -34,12 +34,12 @@ import time
 
 import numpy as np
 
+from benchmarks.simdrive import Drive, DriveSamples, at_speed, periodic_outages
 from viena.common.rotation import wrap_angle
 from viena.services.estimator.angles import yaw_pitch_roll
 from viena.services.estimator.estimator import Estimator
-from benchmarks.simdrive import Drive, DriveSamples, at_speed, periodic_outages
 from viena.services.sim.model.car import CarParams
-from viena.services.sim.model.truth import IST_ORIGIN as ORIGIN   # where SimCar drives
+from viena.services.sim.model.truth import IST_ORIGIN as ORIGIN  # where SimCar drives
 
 #: chi-square, 2 degrees of freedom, 95 %: the 95 % ellipse is NEES <= this
 CHI2_2D_95 = 5.991
@@ -294,8 +294,8 @@ def bench_live(seconds: float) -> list[tuple]:
     """The service fed at the real rates by this process; its CPU share from /proc."""
     import zenoh
 
-    from viena.common.config import load_zenoh_config
     from benchmarks.harness import cpu_seconds, processes, start_router
+    from viena.common.config import load_zenoh_config
     from viena.services.gnss.model.fix import FIX
     from viena.services.imu.model.sample import SAMPLE
 

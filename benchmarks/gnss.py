@@ -21,16 +21,21 @@ import time
 
 import numpy as np
 
-
-from viena.common.config import load_zenoh_config
 from benchmarks.harness import cpu_share, percentile, processes, start_router
+from viena.common.config import load_zenoh_config
+from viena.common.twin.serial_port import SerialEndpoint, TwinWrapper
 from viena.services.gnss.driver.novatel import (
-    BestXyz, FrameDecoder, Header, PositionType, SolutionStatus, decode_log, encode_log,
+    BestXyz,
+    FrameDecoder,
+    Header,
+    PositionType,
+    SolutionStatus,
+    decode_log,
+    encode_log,
 )
 from viena.services.gnss.model.fix import FIX, fix_from_bestxyz
 from viena.services.gnss.simulator import NovatelTwin
 from viena.services.gnss.simulator.serve import parked_truth
-from viena.common.twin.serial_port import SerialEndpoint, TwinWrapper
 
 WEEK_MS = 604_800_000
 T_HOST_NS = 1_700_000_000_000_000_000
@@ -198,6 +203,7 @@ def pair_drive(duration_s: float, seed: int, shared: bool) -> list[tuple]:
 def _raw_h_m(samples, units) -> float:
     """RMS horizontal error of the mean of `units`' fixes at each epoch, in the local frame."""
     import pymap3d
+
     from viena.services.sim.model.truth import IST_ORIGIN
 
     by_epoch: dict[int, list] = {}

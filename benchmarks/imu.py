@@ -24,9 +24,9 @@ import time
 
 import numpy as np
 
-from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
 from viena.services.imu.driver import FRAME_SIZE, FrameDecoder, Razor, Reading, encode_frame
 from viena.services.imu.driver.frames import decode_frame
+from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
 from viena.services.imu.model.sample import SAMPLE, SampleBuilder
 
 
@@ -102,11 +102,11 @@ def bench_sample(n: int) -> dict:
 def bench_service(seconds: float) -> dict:
     import zenoh
 
-    from viena.common.config import load_zenoh_config
     from benchmarks.harness import cpu_seconds, percentile, processes, start_router
+    from viena.common.config import load_zenoh_config
+    from viena.common.twin.serial_port import SerialEndpoint
     from viena.services.imu.simulator import RazorTwin
     from viena.services.imu.simulator.scenarios import fixed_truth
-    from viena.common.twin.serial_port import SerialEndpoint
 
     sent: dict[bytes, int] = {}
 

@@ -28,9 +28,9 @@ from pathlib import Path
 
 import msgpack
 
+from benchmarks.harness import cpu_share, percentile, processes, start_router
 from viena.common.config import load_zenoh_config
 from viena.common.keys import Keys
-from benchmarks.harness import cpu_share, percentile, processes, start_router
 from viena.recording import Recording, RecordingWriter
 
 CAR = "bench"

@@ -26,8 +26,8 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from viena.common.config import load_zenoh_config
 from benchmarks.harness import cpu_seconds, percentile
+from viena.common.config import load_zenoh_config
 from viena.common.secure import secure_client
 from viena.keys import main as keys_main
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 import argparse
 import time
 
-from viena.common.config import load_zenoh_config
 from benchmarks.harness import cpu_share, processes, start_router
+from viena.common.config import load_zenoh_config
 from viena.services.sim.model.car import SimCar
 from viena.services.sim.model.truth import TRUTH, truth_sample
 

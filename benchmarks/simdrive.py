@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Iterator
 
 import numpy as np
 import pymap3d
@@ -212,8 +212,8 @@ class TwinSensors:
         from viena.services.gnss.simulator.errors import GnssErrorModel, SkyModel
         from viena.services.gnss.simulator.novatel_twin import bestxyz_of
         from viena.services.gnss.simulator.solution import TruthSolver
-        from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
         from viena.services.imu.driver import Frame, Reading
+        from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
         from viena.services.imu.model.sample import SampleBuilder
         from viena.services.imu.simulator import RazorBoard
 

@@ -89,7 +89,8 @@ def _wait_ready(session, timeout: float = 30.0) -> None:
 
 
 def _ms(values) -> str:
-    return f"p50 {percentile(values, 50) * 1e3:6.2f} ms   p99 {percentile(values, 99) * 1e3:6.2f} ms   (n={len(values)})"
+    p50, p99 = percentile(values, 50) * 1e3, percentile(values, 99) * 1e3
+    return f"p50 {p50:6.2f} ms   p99 {p99:6.2f} ms   (n={len(values)})"
 
 
 def main(argv=None) -> int:
@@ -146,7 +147,7 @@ def _run(session, watch: BusWatch, pid: int, args) -> None:
         t1 = time.perf_counter()
         if reply["status"] == "rejected":
             raise RuntimeError(f"setpoint rejected: {reply}")
-        t_bus = watch.wait_for(lambda cw, target: target != before, t0, 0.1)   # the new target
+        t_bus = watch.wait_for(lambda cw, target, before=before: target != before, t0, 0.1)   # the new target
         round_trip.append(t1 - t0)
         if t_bus is not None:
             to_bus.append(t_bus - t0)

@@ -55,8 +55,9 @@ ROLES: dict[str, Role] = {
                       publish=("estimator/**",),
                       subscribe=("gnss/*/fix", "imu/*/sample", "estimator/waypoint"),
                       token=("alive/estimator",)),
-    "sim": Role("the simulated car: publishes its ground truth",
-                publish=("sim/**",), token=("alive/sim",)),
+    "sim": Role("the simulated car: publishes its ground truth; its simulated person reads the "
+                "steering's state (to sweep the wheel when asked)",
+                publish=("sim/**",), subscribe=("steering/state",), token=("alive/sim",)),
     "pilot": Role("a person or program allowed to drive: arms, steers, calibrates, stops",
                   subscribe=("**",), command=STEERING_COMMANDS,
                   publish=("steering/setpoint", "steering/estop", "estimator/waypoint"),

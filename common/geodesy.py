@@ -46,7 +46,7 @@ class LocalFrame:
         self._anchor = None
 
     @classmethod
-    def at_ecef(cls, ecef_m) -> "LocalFrame":
+    def at_ecef(cls, ecef_m) -> LocalFrame:
         lat, lon, h = pymap3d.ecef2geodetic(*(float(v) for v in ecef_m))
         return cls(float(lat), float(lon), float(h))
 

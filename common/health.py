@@ -52,7 +52,7 @@ class HealthReport:
     state: dict = field(default_factory=dict)
 
     @classmethod
-    def of(cls, sample, age_s: float = 0.0) -> "HealthReport":
+    def of(cls, sample, age_s: float = 0.0) -> HealthReport:
         """The report in `sample` (any value), received `age_s` ago."""
         if not isinstance(sample, dict):
             return cls()

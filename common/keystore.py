@@ -80,7 +80,7 @@ class KeyStore:
         self.car = car
 
     @classmethod
-    def for_car(cls, car: str, directory: str | Path | None = None) -> "KeyStore":
+    def for_car(cls, car: str, directory: str | Path | None = None) -> KeyStore:
         return cls(directory or default_dir(car), car)
 
     @property
@@ -186,7 +186,7 @@ class KeyStore:
                                 f"re-issue with `viena keys issue {role} {name} --force`")
         return Identity(cn, role, cert_path, key_path, cert.not_valid_after_utc)
 
-    def export(self, names: list[str], target: "KeyStore", force: bool = False) -> list[Identity]:
+    def export(self, names: list[str], target: KeyStore, force: bool = False) -> list[Identity]:
         """Copy the CA certificate (never its key) and these identities into `target`: what
         another machine needs to run them (the Pi, or a laptop the estimator moves to)."""
         identities = [self.identity(name) for name in names]
@@ -238,8 +238,8 @@ class KeyStore:
 
 # -- helpers: cryptography is imported only when keys are used --------------------------------
 def _x509():
-    from cryptography import x509
     import cryptography.x509.oid  # noqa: F401  (x509.oid)
+    from cryptography import x509
     return x509
 
 
@@ -249,7 +249,7 @@ def _sha256():
 
 
 def _now() -> dt.datetime:
-    return dt.datetime.now(dt.timezone.utc)
+    return dt.datetime.now(dt.UTC)
 
 
 def _new_key():

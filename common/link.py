@@ -72,7 +72,7 @@ class Link(ABC):
     def _close(self) -> None:
         """Release the device; never raises."""
 
-    def _apply_baudrate(self) -> None:
+    def _apply_baudrate(self) -> None:  # noqa: B027 (optional hook: transports without rates keep it)
         """Make the open port run at `self.baudrate` (a transport without rates ignores it)."""
 
     @property
@@ -120,7 +120,7 @@ class Link(ABC):
         self.baudrate = baudrate
         self._apply_baudrate()
 
-    def __enter__(self) -> "Link":
+    def __enter__(self) -> Link:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 from viena.common.link import Link
 
@@ -36,7 +36,7 @@ class LinkReader:
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
-    def start(self) -> "LinkReader":
+    def start(self) -> LinkReader:
         """Start reading the (open) link; a reader still running is stopped first."""
         self.stop()
         self._stop = threading.Event()     # the old thread keeps its own, already set

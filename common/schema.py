@@ -14,7 +14,8 @@ A consumer that reads only a few fields, of samples from any source, uses a `Rea
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import msgpack
 
@@ -23,7 +24,7 @@ from viena.common.errors import SampleError
 MSGPACK = "application/msgpack"
 #: Bounds on what we unpack: a sample is small; a hostile payload must not eat memory.
 _MAX_BYTES = 1 << 20
-SCHEMAS: dict[str, "Schema"] = {}
+SCHEMAS: dict[str, Schema] = {}
 
 Check = Callable[[Any], Any]
 
@@ -248,7 +249,7 @@ class Schema:
     def __repr__(self) -> str:
         return f"Schema({self.name!r})"
 
-    def reader(self, *names: str, defaults: dict | None = None) -> "Reader":
+    def reader(self, *names: str, defaults: dict | None = None) -> Reader:
         """Reads these fields out of a sample with this schema's checks (see `Reader`)."""
         return Reader(self, names, defaults)
 

@@ -23,16 +23,16 @@ import os
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 from viena.common.errors import ConfigError, SampleError
 from viena.common.health import HEALTH, Health
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
 from viena.common.schema import Schema
-from viena.common.session import (add_common_arguments, car_name, load_settings_file,
-                                  open_session, zenoh_config)
+from viena.common.session import add_common_arguments, car_name, load_settings_file, open_session, zenoh_config
 from viena.common.settings import add_flags, given_flags, load, specs
 
 STOP_DEADLINE_S = 2.0
@@ -45,7 +45,7 @@ class Publisher:
     """Publishes samples of one schema on one key; a sample that fails its check is
     logged and counted, never sent."""
 
-    def __init__(self, service: "Service", key: str, schema: Schema, **options):
+    def __init__(self, service: Service, key: str, schema: Schema, **options):
         import zenoh
 
         self.key, self.schema = key, schema

@@ -29,9 +29,10 @@ import copy
 import dataclasses
 import json
 import typing
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from functools import cache
-from typing import Any, Iterable, Mapping
+from typing import Any
 
 from viena.common.errors import ConfigError
 

@@ -15,7 +15,7 @@ import statistics
 import threading
 import time
 from collections import deque
-from typing import Callable
+from collections.abc import Callable
 
 #: how many recent epoch intervals the median is taken over
 EPOCH_WINDOW = 15

@@ -21,8 +21,16 @@ import threading
 from abc import ABC, abstractmethod
 
 from viena.common.health import (
-    CONNECT_FAILURES, CONNECTED, DEVICE_ERRORS, INTERNAL_ERRORS, LAST_ERROR, PORT,
-    PORT_FAILURES, RECONNECTS, SILENCES, Health,
+    CONNECT_FAILURES,
+    CONNECTED,
+    DEVICE_ERRORS,
+    INTERNAL_ERRORS,
+    LAST_ERROR,
+    PORT,
+    PORT_FAILURES,
+    RECONNECTS,
+    SILENCES,
+    Health,
 )
 from viena.common.silence import SilenceWatch
 
@@ -95,7 +103,7 @@ class DeviceSupervisor:
         self._show_every_counter()
 
     # -- the thread ----------------------------------------------------------------------
-    def start(self) -> "DeviceSupervisor":
+    def start(self) -> DeviceSupervisor:
         self._thread = threading.Thread(target=self.run, name=f"{self.device.kind}-supervisor",
                                         daemon=True)
         self._thread.start()

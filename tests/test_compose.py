@@ -6,7 +6,6 @@ import subprocess
 from pathlib import Path
 
 import pytest
-
 from vienatest import VIENA, sim_profile_up, viena, wait_until
 
 pytestmark = pytest.mark.slow  # whole profiles under supervisord

@@ -5,8 +5,8 @@ import sys
 import time
 
 import pytest
-
 from vienatest import collect, wait_for_line, wait_until
+
 from viena.common.health import HEALTH
 from viena.services.sim.model.truth import TRUTH
 
@@ -16,8 +16,13 @@ pytestmark = pytest.mark.slow  # every service is started as a process
 def test_help_explains_the_common_flags():
     out = subprocess.run([sys.executable, "-m", "viena.services.sim.service", "--help"],
                          capture_output=True, text=True, check=True).stdout
-    for flag in ("--connect ENDPOINT", "--car NAME", "--config FILE", "--unit NAME"):
+    for flag in ("--connect ENDPOINT", "--car NAME", "--config FILE"):
         assert flag in out
+    # issue 14: --unit only where units exist (one simulated car; several GNSS receivers)
+    assert "--unit" not in out
+    gnss = subprocess.run([sys.executable, "-m", "viena.services.gnss.service", "--help"],
+                          capture_output=True, text=True, check=True).stdout
+    assert "--unit NAME" in gnss
 
 
 @pytest.mark.parametrize("text, message", [
@@ -80,8 +85,9 @@ def test_stops_within_two_seconds_with_status_zero(procs, router, session, sig):
 
 
 def test_service_waits_for_a_router_that_comes_later(procs, tmp_path):
-    from vienatest import free_port, wait_for_port
     import zenoh
+    from vienatest import free_port, wait_for_port
+
     from viena.common.config import load_zenoh_config
 
     port = free_port()

@@ -9,11 +9,11 @@ import time
 
 import pytest
 import serial
+from vienatest import wait_until
 
-from viena.common.health import CONNECTED, CONNECT_FAILURES, PORT_FAILURES, RECONNECTS, Health
+from viena.common.health import CONNECT_FAILURES, CONNECTED, PORT_FAILURES, RECONNECTS, Health
 from viena.common.link import SerialLink
 from viena.common.link_reader import LinkReader
-from vienatest import wait_until
 from viena.common.silence import SilenceWatch
 from viena.common.supervisor import Backoff, Device, DeviceSupervisor
 

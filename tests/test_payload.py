@@ -4,9 +4,9 @@ import json
 import msgpack
 import pytest
 
+from viena.common import zenoh_cli_codec
 from viena.common.errors import PayloadError
 from viena.common.payload import parse_payload, reply_bytes
-from viena.common import zenoh_cli_codec
 
 
 def test_json_text_and_msgpack_give_the_same_map():

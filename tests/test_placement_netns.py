@@ -21,8 +21,8 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from vienatest import Processes
+
 from viena.paths import compose_dir
 
 pytestmark = pytest.mark.slow  # two hosts, each with a whole profile

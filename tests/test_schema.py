@@ -3,7 +3,8 @@ import math
 
 import msgpack
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from viena.common.errors import SampleError
 from viena.common.health import HEALTH

@@ -4,7 +4,8 @@ import copy
 import math
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from viena.common.errors import SampleError
 from viena.common.schema import F, FieldError, Invalid, Schema

@@ -18,8 +18,8 @@ from viena.services.estimator.service import EstimatorService
 from viena.services.gnss.service import GnssService
 from viena.services.sim.service import SimService
 from viena.services.steering.service import SteeringService
-from viena.settings import services, stale_readmes
 from viena.settings import main as settings_main
+from viena.settings import services, stale_readmes
 
 COMPOSE = Path(__file__).resolve().parents[1] / "compose"
 SERVICES = services()
@@ -28,7 +28,7 @@ SERVICES = services()
 def read(cls, toml: dict, *flags: str, unit: str | None = None):
     """What the service would run with, given a TOML file's contents and its flags."""
     args = build_parser(cls).parse_args([*flags, "--config", "f.toml"])
-    return cls.read_settings(toml, unit or args.unit or cls.default_unit, args)
+    return cls.read_settings(toml, unit or getattr(args, "unit", None) or cls.default_unit, args)
 
 
 def test_every_service_is_found():

@@ -5,22 +5,21 @@ and `viena sub`."""
 from __future__ import annotations
 
 import bisect
-from contextlib import contextmanager
 import json
 import shutil
 import subprocess
 import sys
 import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import msgpack
 import numpy as np
 import pymap3d
 import pytest
+from vienatest import collect, collect_until, open_session, sim_profile_up, viena, wait_for_subscriber, wait_until
 
-from vienatest import (collect, collect_until, open_session, sim_profile_up, viena, wait_for_subscriber,
-                       wait_until)
 from viena.common.health import HEALTH
 from viena.common.rotation import quat_to_matrix
 from viena.services.estimator.state import STATE
@@ -214,3 +213,22 @@ def test_zenoh_cli_put_with_msgpack_encoder(sim_profile):
                         "--encoder", "msgpack", "-v", '{"a": 1}'], check=True, timeout=30)
         t.join()
     assert got and msgpack.unpackb(got[0][1]) == {"a": 1}
+
+
+def test_a_calibration_restart_is_swept_again_by_the_simulated_person(car):
+    """Issue 15: a restart left the steering calibrating for good; the person at the wheel
+    now sweeps it again, as asked, and the steering comes back ready."""
+    from viena.services.steering.client import SteeringClient
+
+    client = SteeringClient(car, timeout_s=5.0)
+    end = time.monotonic() + 60
+    while client.ask("calibration", {})["calibration"]["state"] != "done":
+        assert time.monotonic() < end, "never calibrated"
+        time.sleep(0.5)
+    assert client.ask("calibration", {"restart": True})["status"] == "accepted"
+    assert client.ask("calibration", {})["calibration"]["state"] == "sweeping"
+    end = time.monotonic() + 90
+    while (reply := client.ask("calibration", {}))["calibration"]["state"] != "done":
+        assert time.monotonic() < end, reply
+        time.sleep(0.5)
+    assert 90_000 <= reply["calibration"]["span_qc"] <= 100_000

@@ -8,8 +8,18 @@ import threading
 
 import pytest
 
-from viena.common.health import (CONNECT_FAILURES, CONNECTED, DEVICE_ERRORS, INTERNAL_ERRORS,
-                                 LAST_ERROR, PORT, PORT_FAILURES, RECONNECTS, SILENCES, Health)
+from viena.common.health import (
+    CONNECT_FAILURES,
+    CONNECTED,
+    DEVICE_ERRORS,
+    INTERNAL_ERRORS,
+    LAST_ERROR,
+    PORT,
+    PORT_FAILURES,
+    RECONNECTS,
+    SILENCES,
+    Health,
+)
 from viena.common.silence import SilenceWatch
 from viena.common.supervisor import Backoff, Device, DeviceSupervisor
 

@@ -10,9 +10,9 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable
 
 from benchmarks.harness import free_port, wait_for_port  # noqa: F401  (tests import them from here)
 

@@ -138,7 +138,8 @@ def _install(path: Path, text: str, args: argparse.Namespace, systemd: bool) -> 
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
     except PermissionError:
-        again = shlex.join([sys.executable, "-m", "viena.cli", *sys.argv[1:]]) if sys.argv[1:] else "viena service install"
+        again = (shlex.join([sys.executable, "-m", "viena.cli", *sys.argv[1:]]) if sys.argv[1:]
+                 else "viena service install")
         raise Fail(f"cannot write {path}: a system unit needs root (`sudo {again}`; it will run as "
                    f"{run_as()}), or --user for a user unit") from None
     print(f"{'replaced' if replaced else 'wrote'} {path}")

@@ -29,8 +29,7 @@ from viena.common.errors import ConfigError
 from viena.paths import compose_dir
 from viena.profile_security import SecurityRefusal, secure_environment
 from viena.profile_security import programs as programs_in
-from viena.runstate import (profiles, read_environment, run_dir, running_profiles,  # noqa: F401
-                            state_root, supervisord_pid)
+from viena.runstate import profiles, read_environment, run_dir, running_profiles, state_root, supervisord_pid  # noqa: F401
 
 DEFAULT_PROFILE = "sim"
 _PORT_VAR = re.compile(r"(?:%\(ENV_|\$\{)(VIENA_[A-Z0-9_]*PORT)(?:\)s|:-(\d+)\}|\})")

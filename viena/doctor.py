@@ -213,7 +213,7 @@ def check_keys(store, identities: list[str], with_router: bool) -> list[Check]:
 def _now():
     import datetime as dt
 
-    return dt.datetime.now(dt.timezone.utc)
+    return dt.datetime.now(dt.UTC)
 
 
 def check_router(connect: list[str], keys: str | None, car: str, identity: str | None,

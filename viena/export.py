@@ -14,8 +14,9 @@ import csv
 import json
 import math
 import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from viena.common.errors import InputError, SampleError
 from viena.common.payload import to_jsonable

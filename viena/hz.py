@@ -2,7 +2,8 @@
 
 Once a second, one line per key the expression matches (as `ros2 topic hz` does):
 
-    viena/elettra/imu/razor0/sample: 100.02 Hz, period 10.00 ms (std 0.41, min 8.90, max 11.32 ms), 9.4 kB/s (94 B/sample), 100 samples
+    viena/elettra/imu/razor0/sample: 100.02 Hz, period 10.00 ms (std 0.41, min 8.90, max 11.32 ms),
+        9.4 kB/s (94 B/sample), 100 samples
 
 measured over the last --window samples, at their arrival on this machine (so the
 network's jitter is in it). The arithmetic is `RateMeter`, a plain object given arrival

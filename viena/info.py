@@ -17,7 +17,7 @@ import argparse
 import json
 import sys
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 from viena.common.errors import InputError
 from viena.recording import Recording, human_bytes
@@ -59,7 +59,7 @@ def summarize(recording: Recording) -> dict[str, KeyStats]:
 def _utc(ns: int | None, fmt: str = "%Y-%m-%d %H:%M:%S.%f") -> str:
     if ns is None:
         return "-"
-    return datetime.fromtimestamp(ns / 1e9, timezone.utc).strftime(fmt)[:-3]
+    return datetime.fromtimestamp(ns / 1e9, UTC).strftime(fmt)[:-3]
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:

@@ -114,7 +114,7 @@ def _list(store: KeyStore, args) -> int:
 
 
 def _print_table(identities, store: KeyStore | None = None) -> None:
-    now = dt.datetime.now(dt.timezone.utc)
+    now = dt.datetime.now(dt.UTC)
     print(f"{'name':<12} {'role':<10} {'expires':<11} status")
     for ident in identities:
         status = "ok"
@@ -141,13 +141,13 @@ def _zenoh_config(store: KeyStore, args) -> int:
 
 def _running_endpoint() -> str:
     """The running profile's TLS endpoint, so the printed config reaches the car as it is."""
-    from viena import compose
+    from viena.runstate import read_environment, running_profiles
 
-    for profile in compose.running_profiles():
-        env = compose.saved_environment(profile)
-        if env.get("VIENA_LINK") == "tls":
-            host = env.get("VIENA_PI", "localhost") if profile == "laptop" else "localhost"
-            return f"tls/{host}:{env.get('VIENA_ROUTER_PORT', '7447')}"
+    for profile in running_profiles():
+        env = read_environment(profile) or {}
+        tls = [e for e in env.get("VIENA_CONNECT", "").split(",") if e.startswith("tls/")]
+        if tls:
+            return tls[0]
     return "tls/localhost:7447"
 
 

@@ -20,7 +20,7 @@ import socket
 import sys
 import threading
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 from viena.common.log import setup_logging
@@ -30,6 +30,8 @@ from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guard
 
 log = logging.getLogger("viena.record")
 PROGRESS_PERIOD_S = 0.5
+#: chunks are closed and made durable this often: what a kill -9 or a power cut can lose
+FLUSH_PERIOD_S = 0.5
 #: how often the progress line is printed when stderr is not a terminal (a log file)
 LOG_PERIOD_S = 10.0
 
@@ -70,18 +72,27 @@ class Recorder:
         return self._queue.qsize()
 
     def _write_loop(self) -> None:
+        """Write what arrives; every FLUSH_PERIOD_S close the chunk and make it durable, so
+        a recorder killed (or a car switched off) loses at most that much."""
         get, write = self._queue.get, self.writer.write
+        flush_at = time.monotonic() + FLUSH_PERIOD_S
         while True:
-            item = get()
+            try:
+                item = get(timeout=max(0.0, flush_at - time.monotonic()))
+            except queue.Empty:
+                item = ()
             if item is None:
                 return
-            if self.error is not None:
-                continue                     # drain: nothing more goes to a broken file
-            log_time, key, encoding, data = item
             try:
-                write(key, encoding, log_time, data)
+                if item and self.error is None:
+                    log_time, key, encoding, data = item
+                    write(key, encoding, log_time, data)
+                if time.monotonic() >= flush_at:
+                    flush_at = time.monotonic() + FLUSH_PERIOD_S
+                    if self.error is None:
+                        self.writer.flush()
             except OSError as exc:
-                self.error = exc
+                self.error = exc             # drain: nothing more goes to a broken file
                 self.failed.set()
 
     def stop(self) -> Path | None:
@@ -105,7 +116,7 @@ class Recorder:
 
 
 def default_output() -> str:
-    return datetime.now(timezone.utc).strftime("viena-%Y%m%d-%H%M%S.mcap")
+    return datetime.now(UTC).strftime("viena-%Y%m%d-%H%M%S.mcap")
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
@@ -170,7 +181,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         writer = RecordingWriter(output, metadata={
             "keyexprs": " ".join(keyexprs), "car": link.car, "host": socket.gethostname(),
-            "started": datetime.now(timezone.utc).isoformat(timespec="seconds")})
+            "started": datetime.now(UTC).isoformat(timespec="seconds")})
     except OSError as exc:
         raise Fail(f"cannot write {output}: {exc.strerror or exc}") from None
 

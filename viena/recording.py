@@ -22,9 +22,10 @@ import json
 import os
 import struct
 import time
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
 
 import msgpack
 from mcap.exceptions import EndOfFile, McapError
@@ -134,11 +135,11 @@ class RecordingWriter:
     """
 
     def __init__(self, path: str | Path, metadata: dict[str, str] | None = None,
-                 chunk_size: int = CHUNK_BYTES):
+                 chunk_size: int = CHUNK_BYTES, part_suffix: str = ".part"):
         self.path = Path(path)
         if self.path.is_dir():
             raise IsADirectoryError(21, "is a directory", str(self.path))
-        self.part = self.path.with_name(self.path.name + ".part")
+        self.part = self.path.with_name(self.path.name + part_suffix)
         self._file = open(self.part, "wb")
         self._writer = Writer(self._file, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._channels: dict[tuple[str, str], list[int]] = {}     # -> [channel id, sequence]
@@ -146,7 +147,7 @@ class RecordingWriter:
         self.samples = 0
         self._writer.start(profile=PROFILE, library="viena record")
         if metadata:
-            self._writer.add_metadata(METADATA_NAME, {k: str(v) for k, v in metadata.items()})
+            self.add_metadata(metadata)
 
     @property
     def keys(self) -> int:
@@ -176,6 +177,15 @@ class RecordingWriter:
             self._schemas[name] = schema_id
         return self._writer.register_channel(key, message_encoding(encoding), schema_id,
                                              {ENCODING_KEY: encoding})
+
+    def add_metadata(self, metadata: dict[str, str]) -> None:
+        self._writer.add_metadata(METADATA_NAME, {k: str(v) for k, v in metadata.items()})
+
+    def flush(self) -> None:
+        """Close the open chunk and make the file durable up to here: a reader (ours or
+        mcap's own) then sees everything written so far, even if the process dies next."""
+        self._writer.flush()
+        os.fsync(self._file.fileno())
 
     def close(self) -> Path:
         """Finish the file, make it durable, and give it its real name."""
@@ -366,3 +376,28 @@ def human_bytes(n: float) -> str:
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1000
     return f"{n:.1f} GB"
+
+
+def repair(path: str | Path, output: str | Path | None = None) -> tuple[Path, int, list[str]]:
+    """Rewrite a recording cut short (`drive.mcap.part` after a kill -9 or a power cut) as a
+    complete MCAP file that any reader opens: every sample that can still be read, its
+    channels and metadata, a fresh summary. Returns (the new file, samples, what was lost)."""
+    source = Recording(path)
+    path = Path(path)
+    if output is None:
+        output = path.with_name(path.name[:-len(".part")]) if path.name.endswith(".part") \
+            else path.with_name(path.stem + "-repaired.mcap")
+    output = Path(output)
+    if output.resolve() == path.resolve():
+        raise RecordingError(f"{output}: the repaired recording needs a name of its own")
+    writer = RecordingWriter(output, part_suffix=".repairing")     # not the .part being read
+    try:
+        for m in source.messages():
+            writer.write(m.key, m.encoding, m.log_time, m.data, m.publish_time)
+        if source.metadata:
+            writer.add_metadata({**source.metadata, "repaired_from": path.name})
+        done = writer.close()
+    except BaseException:
+        writer.discard()
+        raise
+    return done, writer.samples, source.report()

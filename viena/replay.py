@@ -15,8 +15,8 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Iterable
 
 from viena.common.errors import InputError
 from viena.common.keys import ROOT, Keys

@@ -1,8 +1,10 @@
 """`viena router`: a zenoh session in router mode, for machines without zenohd.
 
-It reads the same JSON5 file zenohd would (compose/zenoh/router.json5), so a user with
-zenohd can run `zenohd -c compose/zenoh/router.json5` instead (the secured car needs the
-TLS and access-control settings this command adds from the key store).
+It reads the same JSON5 file zenohd would (compose/zenoh/router.json5, or --zenoh-config),
+so a user with zenohd can run `zenohd -c compose/zenoh/router.json5` instead (the secured
+car needs the TLS and access-control settings this command adds from the key store).
+`--config FILE` is viena's settings file (TOML), as for every viena process: its [zenoh]
+table may give `listen`, `connect` and `config` (the JSON5 file); flags win over it.
 
 Listening on `tls/...` secures the router: every client must present a certificate signed
 by the car's CA (mutual TLS) and may do only what its role allows (common/access.py).
@@ -17,13 +19,14 @@ import logging
 import os
 import sys
 import threading
+from pathlib import Path
 
-from viena.common.config import ConfigError, load_zenoh_config
+from viena.common.config import ConfigError, load_toml, load_zenoh_config
 from viena.common.keys import DEFAULT_CAR
 from viena.common.keystore import KeyStore
 from viena.common.log import setup_logging
 from viena.common.secure import is_loopback, is_secure, secure_router
-from viena.common.session import config_endpoints, stop_on_signals
+from viena.common.session import add_version_flag, check_endpoint, config_endpoints, stop_on_signals
 from viena.paths import router_config
 
 log = logging.getLogger("viena.router")
@@ -37,8 +40,11 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                              "default: the config file's listen endpoints)")
     parser.add_argument("--connect", metavar="ENDPOINT", action="append",
                         help="another router to join (repeatable)")
-    parser.add_argument("--config", metavar="FILE", default=None,
-                        help=f"zenoh JSON5 config (default {router_config()})")
+    parser.add_argument("--config", metavar="FILE", type=Path, default=None,
+                        help="viena settings file (TOML); its [zenoh] table may give 'listen', "
+                             "'connect' and 'config' (a zenoh JSON5 file)")
+    parser.add_argument("--zenoh-config", metavar="FILE", type=Path, default=None,
+                        help=f"zenoh JSON5 config, as zenohd reads it (default {router_config()})")
     parser.add_argument("--car", default=DEFAULT_CAR, metavar="NAME",
                         help=f"whose key store secures tls/ listeners (default {DEFAULT_CAR})")
     parser.add_argument("--keys", metavar="DIR",
@@ -46,8 +52,35 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--insecure", action="store_true",
                         help="allow a plain tcp/ listener other machines can reach (no TLS, no "
                              "access control: anyone on that network can steer)")
-    parser.add_argument("--log-level", default="INFO", metavar="LEVEL")
+    parser.add_argument("--log-level", default="INFO", metavar="LEVEL",
+                        help="DEBUG, INFO, WARNING or ERROR (default INFO)")
+    if "--version" not in parser._option_string_actions:
+        add_version_flag(parser)
     return parser
+
+
+def router_settings(args: argparse.Namespace) -> tuple[Path, list[str] | None, list[str] | None]:
+    """The JSON5 file, listen and connect endpoints: flags, then --config's [zenoh] table,
+    then the shipped router.json5."""
+    if args.config and str(args.config).endswith((".json5", ".json")):
+        raise ConfigError(f"--config {args.config}: --config takes viena settings (TOML); a zenoh "
+                          f"JSON5 file goes to --zenoh-config")
+    table = load_toml(args.config).get("zenoh", {}) if args.config else {}
+    source = f"{args.config} [zenoh]"
+    if not isinstance(table, dict):
+        raise ConfigError(f"{source}: must be a table")
+    path = args.zenoh_config
+    if path is None and table.get("config"):
+        path = Path(table["config"])
+        path = path if path.is_absolute() else Path(args.config).parent / path
+    ends = {}
+    for name in ("listen", "connect"):
+        given = getattr(args, name)
+        value = given if given else table.get(name)
+        value = [value] if isinstance(value, str) else value
+        where = f"--{name}" if given else f"{source} {name}"
+        ends[name] = [check_endpoint(e, where) for e in value] if value else None
+    return path or router_config(), ends["listen"], ends["connect"]
 
 
 def secure(conf, args: argparse.Namespace) -> str:
@@ -75,9 +108,9 @@ def run(args: argparse.Namespace) -> int:
     import zenoh
 
     setup_logging(args.log_level)
-    path = args.config or router_config()
     try:
-        conf = load_zenoh_config(path, mode="router", listen=args.listen, connect=args.connect)
+        path, listen, connect = router_settings(args)
+        conf = load_zenoh_config(path, mode="router", listen=listen, connect=connect)
         security = secure(conf, args)
     except ConfigError as exc:
         print(f"viena router: {exc}", file=sys.stderr)
@@ -88,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     except zenoh.ZError as exc:
         print(f"viena router: cannot start: {str(exc).split(' at ')[0]}", file=sys.stderr)
         return 1
-    listening = config_endpoints(conf, "listen") or args.listen
+    listening = config_endpoints(conf, "listen") or listen
     log.info("router %s listening on %s (config %s); %s", session.zid(), ", ".join(listening or []),
              path, security)
     _wait(stop, security)

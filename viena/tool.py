@@ -12,12 +12,11 @@ import argparse
 import sys
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from viena.common.errors import InputError
 from viena.common.keys import Keys
-from viena.common.session import (Unreachable, car_name, check_keyexpr, load_settings_file,
-                                  open_session, zenoh_config)
+from viena.common.session import Unreachable, car_name, check_keyexpr, load_settings_file, open_session, zenoh_config
 
 #: how long a subscription may hear nothing before the tool says so
 SILENCE_WARNING_S = 5.0

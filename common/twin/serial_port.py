@@ -70,7 +70,7 @@ class SerialEndpoint:
     def url(self) -> str:
         return f"socket://{self.host}:{self.port}"
 
-    def start(self) -> "SerialEndpoint":
+    def start(self) -> SerialEndpoint:
         self._thread.start()
         log.info("%s serving on %s", self.name, self.url)
         return self

@@ -138,7 +138,7 @@ class SlcanHub:
         with self._clients_lock:
             return sum(1 for c in self._clients if c.alive)
 
-    def start(self) -> "SlcanHub":
+    def start(self) -> SlcanHub:
         for t in self._threads:
             t.start()
         log.info("slcan hub on %s bridged to virtual channel %r", self.url, self.channel)
@@ -193,7 +193,7 @@ class SlcanHub:
     def _read(self, sel, client: _Client) -> None:
         try:
             data = client.sock.recv(4096)
-        except (BlockingIOError, socket.timeout):
+        except (TimeoutError, BlockingIOError):
             return
         except OSError:
             data = b""

@@ -6,8 +6,8 @@
   gyro's mean reading is its bias;
 - then per IMU sample, Madgwick's step (MARG when a plausible magnetometer reading is
   there, else IMU-only) with the gyro's bias removed. Its gain says who corrects the tilt:
-  * standing (or nothing tells the car's own acceleration): the accelerometer levels the
-    attitude, gain `madgwick_beta`;
+  * standing (or nothing tells the car's own acceleration): the accelerometer (minus the
+    bias the Kalman filter learnt) levels the attitude, gain `madgwick_beta`;
   * moving, GNSS velocity coming: the Kalman filter's tilt states do, from how the
     velocity goes wrong (kalman.py), and hand their estimate over (`correct_tilt`);
     Madgwick only integrates the gyro (`madgwick_beta_aided`, 0), the yaw is corrected by
@@ -88,10 +88,10 @@ class Attitude:
         if self._align_t0 is None:
             self._align_t0 = t
         a[0] += 1
-        a[1] += fx; a[2] += fy; a[3] += fz
-        a[4] += gx; a[5] += gy; a[6] += gz
+        a[1:4] = [a[1] + fx, a[2] + fy, a[3] + fz]
+        a[4:7] = [a[4] + gx, a[5] + gy, a[6] + gz]
         if mag is not None:
-            a[7] += mag[0]; a[8] += mag[1]; a[9] += mag[2]; a[10] += 1
+            a[7:11] = [a[7] + mag[0], a[8] + mag[1], a[9] + mag[2], a[10] + 1]
         s = self.settings
         if (t - self._align_t0) * 1e-9 < s.align_s:
             return
@@ -118,7 +118,10 @@ class Attitude:
 
     # -- per sample ----------------------------------------------------------------------------
     def update(self, dt: float, ax, ay, az, gx, gy, gz, mag, speed, aided: bool, still: bool) -> None:
-        """One Madgwick step with the bias-corrected rate (gx, gy, gz). `speed`: the filter's
+        """One Madgwick step with the bias-corrected rate (gx, gy, gz) and specific force
+        (ax, ay, az: the accelerometer minus the Kalman filter's bias estimate, which its
+        tilt states keep apart from the tilt; levelling with the raw one would put the
+        learnt bias back into the tilt, and the two would count it twice). `speed`: the filter's
         velocity along the car's forward axis when position and yaw are known (else None);
         `aided`: GNSS velocity came within the last second; `still`: the car stands."""
         if still or speed is None:

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Callable, Mapping
+from collections.abc import Callable, Mapping
 
 from viena.common.geodesy import LocalFrame
 from viena.common.settings import from_mapping
@@ -278,7 +278,7 @@ class Estimator:
             speed = r[1] * kx[3] + r[4] * kx[4] + r[7] * kx[5]     # along the car's forward axis
         speed_t = self.gnss.speed_t
         aided = speed_t is not None and t - speed_t < 1_000_000_000
-        att.update(dt, ax, ay, az, gx, gy, gz, mag, speed, aided, standstill.still)
+        att.update(dt, fx, fy, fz, gx, gy, gz, mag, speed, aided, standstill.still)
         if dt > 0.0:
             heading.filter.pending_s += dt
         if not kf.initialized:

@@ -35,9 +35,9 @@ class TrajectoryHistory:
     def correct(self, dp=None, dv=None, dyaw=0.0) -> None:
         c = self.corr
         if dp is not None:
-            c[0] += dp[0]; c[1] += dp[1]; c[2] += dp[2]
+            c[0:3] = [c[0] + dp[0], c[1] + dp[1], c[2] + dp[2]]
         if dv is not None:
-            c[3] += dv[0]; c[4] += dv[1]; c[5] += dv[2]
+            c[3:6] = [c[3] + dv[0], c[4] + dv[1], c[5] + dv[2]]
         c[6] += dyaw
 
     def raw_position(self, t: int, x_now, t_now: int | None):

@@ -26,11 +26,19 @@ from viena.common.service import Service, run_service
 from viena.common.settings import setting
 from viena.common.silence import SilenceWatch
 from viena.common.supervisor import Backoff, Device, DeviceSupervisor
-
 from viena.services.gnss.driver.nmea import NmeaReceiver
 from viena.services.gnss.driver.novatel import (
-    CommandError, CommandTimeout, Dynamics, LogRequest, MessageId, NovatelReceiver,
-    SbasKeyword, SbasSystem, StartupConfig, Trigger, check_sbas,
+    CommandError,
+    CommandTimeout,
+    Dynamics,
+    LogRequest,
+    MessageId,
+    NovatelReceiver,
+    SbasKeyword,
+    SbasSystem,
+    StartupConfig,
+    Trigger,
+    check_sbas,
 )
 from viena.services.gnss.model.fix import FIX, NovatelFixBuilder, fix_from_nmea
 
@@ -81,7 +89,7 @@ class ReceiverDevice(Device):
     protocol = ""
     connect_errors = CONNECT_ERRORS
 
-    def __init__(self, service: "GnssService"):
+    def __init__(self, service: GnssService):
         self.service = service
         self._failed = threading.Event()
         self._failure = ""
@@ -116,7 +124,7 @@ class NovatelSource(ReceiverDevice):
     protocol = "novatel"
     kind = "NovAtel receiver"
 
-    def __init__(self, service: "GnssService"):
+    def __init__(self, service: GnssService):
         super().__init__(service)
         s = service.settings
         self.receiver = NovatelReceiver(s.port, command_timeout=s.command_timeout_s,
@@ -206,7 +214,7 @@ class NmeaSource(ReceiverDevice):
     protocol = "nmea"
     kind = "NMEA receiver"
 
-    def __init__(self, service: "GnssService"):
+    def __init__(self, service: GnssService):
         super().__init__(service)
         s = service.settings
         self.baudrate = s.baudrate

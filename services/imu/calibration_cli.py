@@ -26,9 +26,8 @@ import numpy as np
 
 from viena.common.errors import ConfigError, InputError, SampleError
 from viena.services.imu import drive_calibration
+from viena.services.imu.calibration_file import DEFAULT_FILE, dumps, load_calibration, load_file, save_calibration
 from viena.services.imu.model import fitting
-from viena.services.imu.calibration_file import (DEFAULT_FILE, dumps, load_calibration, load_file,
-                                                 save_calibration)
 from viena.services.imu.model.calibration import FIRMWARES, ImuCalibration, SampleCalibrator, to_table
 from viena.services.imu.model.fitting import FitError
 from viena.services.imu.model.glitch import LISBON_FIELD_T, MagGlitchFilter

@@ -13,7 +13,6 @@ import tomllib
 from pathlib import Path
 
 from viena.common.errors import ConfigError
-
 from viena.services.imu.model.calibration import ImuCalibration, from_table, seed_calibration, to_table
 
 DEFAULT_FILE = Path(os.environ.get("VIENA_CONFIG_DIR", "~/.config/viena")).expanduser() / "imu_calibration.toml"
@@ -51,7 +50,7 @@ def save_calibration(path: str | Path, unit: str, cal: ImuCalibration) -> ImuCal
     """Write the unit's table, keeping the other units; atomic (temp file + rename)."""
     path = Path(path)
     cal = dataclasses.replace(cal.validate(f"{unit}"), source=str(path),
-                              updated=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"))
+                              updated=dt.datetime.now(dt.UTC).isoformat(timespec="seconds"))
     tables = load_file(path)
     tables[unit] = to_table(cal)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -9,9 +9,9 @@ when the frame was read. The real parked-car recordings ship in data/imu/.
 from __future__ import annotations
 
 import csv
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 
@@ -43,7 +43,7 @@ class Recording:
         span = (self.t_host_ns[-1] - self.t_host_ns[0]) / 1e9
         return (len(self) - 1) / span if span > 0 else float("nan")
 
-    def slice(self, s: slice) -> "Recording":
+    def slice(self, s: slice) -> Recording:
         return Recording(self.t_host_ns[s], self.board_id[s], self.accel_g[s], self.gyro_dps[s],
                          self.mag_counts[s], self.euler_deg[s], self.name)
 

@@ -19,8 +19,8 @@ from viena.common.settings import setting
 from viena.common.silence import SilenceWatch
 from viena.common.supervisor import Backoff, Device, DeviceSupervisor
 from viena.services.imu.calibration_file import DEFAULT_FILE, load_calibration
-from viena.services.imu.model.calibration import FIRMWARES, SampleCalibrator
 from viena.services.imu.driver import DRIVERS, RazorAhrs, SerialImu
+from viena.services.imu.model.calibration import FIRMWARES, SampleCalibrator
 from viena.services.imu.model.glitch import MagGlitchFilter
 from viena.services.imu.model.sample import SAMPLE, SampleBuilder
 
@@ -40,7 +40,7 @@ class RazorDevice(Device):
 
     kind = "Razor IMU"
 
-    def __init__(self, service: "ImuService", driver: SerialImu):
+    def __init__(self, service: ImuService, driver: SerialImu):
         self.service, self.driver = service, driver
 
     def connect(self, again: bool) -> None:

@@ -94,8 +94,14 @@ class SteeringClient:
 def main(argv=None) -> int:
     from viena.common.errors import InputError
     from viena.common.log import setup_logging
-    from viena.common.session import (Unreachable, add_common_arguments, car_name, load_settings_file,
-                                      open_session, zenoh_config)
+    from viena.common.session import (
+        Unreachable,
+        add_common_arguments,
+        car_name,
+        load_settings_file,
+        open_session,
+        zenoh_config,
+    )
 
     p = argparse.ArgumentParser(prog="viena-steer", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -24,14 +24,23 @@ import logging
 import queue
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
-from viena.services.steering.model.actions import (JOBS, Command, Configure, Connect, Cycle, DriveReading, Reply,
-                                             SendTarget, WriteLimits)
-from viena.services.steering.model.calibration import Calibration, CalibrationSettings
-from viena.services.steering.model.core import ControllerSettings, Phase, SteeringCore
 from viena.services.steering.driver.emcy import Emcy, emcy_name
 from viena.services.steering.driver.epos import DriveError, EposDrive
+from viena.services.steering.model.actions import (
+    JOBS,
+    Command,
+    Configure,
+    Connect,
+    Cycle,
+    DriveReading,
+    Reply,
+    SendTarget,
+    WriteLimits,
+)
+from viena.services.steering.model.calibration import Calibration, CalibrationSettings
+from viena.services.steering.model.core import ControllerSettings, Phase, SteeringCore
 from viena.services.steering.model.requests import Request, parse_request
 from viena.services.steering.model.safety import REJECTED, Envelope
 from viena.services.steering.model.state import sample

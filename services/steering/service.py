@@ -32,9 +32,9 @@ from viena.common.log import Throttled
 from viena.common.payload import parse_payload, reply_bytes
 from viena.common.service import Service, run_service
 from viena.common.settings import part
-from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.controller import ControllerSettings, SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
+from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.model.safety import REJECTED, Envelope, SafetySettings
 from viena.services.steering.model.state import STATE
 

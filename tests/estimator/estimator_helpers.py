@@ -6,10 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from benchmarks.simdrive import Drive, DriveSamples
 from viena.common.rotation import wrap_angle
 from viena.services.estimator.angles import yaw_pitch_roll
 from viena.services.estimator.estimator import Estimator
-from benchmarks.simdrive import Drive, DriveSamples
 from viena.services.estimator.state import STATE
 
 

@@ -17,11 +17,10 @@ import math
 
 import numpy as np
 import pytest
+from estimator_helpers import deg, generate, run, settings_for, without_mag
 
 from benchmarks.simdrive import Drive
 from viena.services.sim.model.car import CarParams
-
-from estimator_helpers import deg, generate, run, settings_for, without_mag
 
 pytestmark = pytest.mark.slow  # 100 s simulated drives through the filter
 

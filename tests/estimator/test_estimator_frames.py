@@ -10,18 +10,27 @@ import math
 import numpy as np
 import pymap3d
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from viena.common.rotation import (euler_from_quat, euler_to_matrix, quat_from_euler,
-                                   quat_multiply, quat_to_matrix)
 from viena.common.geodesy import LocalFrame
-from viena.services.estimator.angles import (forward_yaw, quat_from_yaw_pitch_roll,
-                                             tilt_from_specific_force, yaw_pitch_roll)
+from viena.common.rotation import euler_from_quat, euler_to_matrix, quat_from_euler, quat_multiply, quat_to_matrix
+from viena.services.estimator.angles import (
+    forward_yaw,
+    quat_from_yaw_pitch_roll,
+    tilt_from_specific_force,
+    yaw_pitch_roll,
+)
 from viena.services.estimator.heading import course_yaw
 from viena.services.estimator.madgwick import attitude_from_vectors
-from viena.services.estimator.navigation import (bearing_distance, compass_heading_deg,
-                                                 heading_error_deg, normalize_deg,
-                                                 waypoint_from, waypoint_guidance)
+from viena.services.estimator.navigation import (
+    bearing_distance,
+    compass_heading_deg,
+    heading_error_deg,
+    normalize_deg,
+    waypoint_from,
+    waypoint_guidance,
+)
 
 IST = (38.7369, -9.1395, 100.0)
 angles = st.floats(-math.pi, math.pi, allow_nan=False)

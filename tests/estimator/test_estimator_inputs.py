@@ -7,13 +7,13 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
-
-from viena.services.estimator.estimator import Estimator
-from benchmarks.simdrive import Drive
-from viena.services.estimator.state import STATE
-
 from estimator_helpers import generate, settings_for
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from benchmarks.simdrive import Drive
+from viena.services.estimator.estimator import Estimator
+from viena.services.estimator.state import STATE
 
 DRIVE = Drive(duration_s=25.0, seed=11)
 

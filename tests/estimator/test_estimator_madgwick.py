@@ -10,11 +10,10 @@ import math
 import numpy as np
 import pytest
 from ahrs.filters import Madgwick as AhrsMadgwick
+from estimator_recordings import IMU_PARKED, RAZOR_RATE_HZ, razor_parked_samples
 
 from viena.common.rotation import euler_from_quat, quat_from_euler, quat_multiply, quat_to_matrix
 from viena.services.estimator.madgwick import Madgwick
-
-from estimator_recordings import IMU_PARKED, RAZOR_RATE_HZ, razor_parked_samples
 
 Q_NWU_TO_ENU = quat_from_euler(math.pi / 2, 0.0, 0.0)
 LISBON_T = np.array([-1121.5, 26479.8, -34884.7]) * 1e-9

@@ -9,17 +9,14 @@ filter holds stays small, the attitude follows the road's grade, and 10 s outage
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
+from estimator_helpers import settings_for
 
 from benchmarks.simdrive import DriveSamples, at_speed, periodic_outages
 from viena.common.rotation import wrap_angle
 from viena.services.estimator.angles import yaw_pitch_roll
 from viena.services.estimator.estimator import Estimator
-
-from estimator_helpers import settings_for
 
 pytestmark = pytest.mark.slow  # 2-minute simulated drives through the filter
 

@@ -13,11 +13,10 @@ import math
 import numpy as np
 import pymap3d
 import pytest
+from estimator_recordings import IMU_PARKED, gnss_drive_fixes, razor_parked_samples
 
 from viena.services.estimator.estimator import Estimator
 from viena.services.estimator.state import STATE
-
-from estimator_recordings import IMU_PARKED, gnss_drive_fixes, razor_parked_samples
 
 
 @pytest.mark.parametrize("path", IMU_PARKED, ids=lambda p: p.stem)

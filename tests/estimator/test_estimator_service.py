@@ -10,16 +10,15 @@ import time
 import msgpack
 import pytest
 import zenoh
-
-from viena.common.health import HEALTH
+from estimator_helpers import generate
 from vienatest import wait_for_subscriber, wait_until
-from viena.services.estimator.navigation import bearing_distance
+
 from benchmarks.simdrive import Drive
+from viena.common.health import HEALTH
+from viena.services.estimator.navigation import bearing_distance
 from viena.services.estimator.state import STATE
 from viena.services.gnss.model.fix import FIX
 from viena.services.imu.model.sample import SAMPLE
-
-from estimator_helpers import generate
 
 pytestmark = pytest.mark.slow  # the service as a process
 

@@ -13,14 +13,13 @@ import math
 
 import numpy as np
 import pytest
+from estimator_helpers import settings_for
 
 from benchmarks.simdrive import Drive, DriveSamples
 from viena.common.rotation import wrap_angle
 from viena.services.estimator.angles import yaw_pitch_roll
 from viena.services.estimator.estimator import Estimator
 from viena.services.estimator.timing import OffsetHint
-
-from estimator_helpers import settings_for
 
 
 def drive_with_late_imu(late_s: float, seed: int = 1, duration_s: float = 130.0):

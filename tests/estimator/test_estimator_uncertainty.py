@@ -13,13 +13,12 @@ import math
 
 import numpy as np
 import pytest
+from estimator_helpers import generate, settings_for
 
 from benchmarks.simdrive import Drive
 from viena.services.estimator.gnss_noise import WhiteShare
 from viena.services.estimator.kalman import KalmanNoise, NavKalman
 from viena.services.estimator.state import CHI2_2D_95, STATE
-
-from estimator_helpers import generate, settings_for
 
 pytestmark = pytest.mark.slow  # simulated drives through the filter
 

@@ -5,12 +5,19 @@ from __future__ import annotations
 
 import struct
 
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns
 from viena.services.gnss.driver.nmea import NmeaDecoder
 from viena.services.gnss.driver.novatel import (
-    BestXyz, FrameDecoder, Header, PositionType, Response, SolutionStatus, encode_log,
+    BestXyz,
+    FrameDecoder,
+    Header,
+    PositionType,
+    Response,
+    SolutionStatus,
+    encode_log,
 )
 from viena.services.gnss.driver.novatel.framing import MAX_BODY_LENGTH
 from viena.services.gnss.simulator.nmea_twin import nmea_epoch

@@ -8,8 +8,8 @@ import bisect
 import numpy as np
 import pymap3d
 import pytest
-
 from vienatest import collect, free_port
+
 from viena.common.rotation import quat_to_matrix
 from viena.services.gnss.model.fix import FIX
 from viena.services.sim.model.truth import TRUTH

@@ -1,10 +1,14 @@
 """GPS week + milliseconds <-> UTC, across leap seconds."""
 import calendar
 
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from viena.services.gnss.driver.gpstime import (
-    gps_to_utc_ns, leap_seconds_at_utc, utc_to_gps, utc_to_gps_ns,
+    gps_to_utc_ns,
+    leap_seconds_at_utc,
+    utc_to_gps,
+    utc_to_gps_ns,
 )
 
 S = 1_000_000_000

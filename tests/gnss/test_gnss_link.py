@@ -8,16 +8,21 @@ import threading
 
 import numpy as np
 import pytest
-
 from gnss_helpers import ORIGIN_ECEF, start_twin, still
+
+from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.gnss.driver.nmea import NmeaReceiver
 from viena.services.gnss.driver.novatel import (
-    CommandError, CommandTimeout, MessageId, NovatelReceiver, ResponseId, StartupConfig,
+    CommandError,
+    CommandTimeout,
+    MessageId,
+    NovatelReceiver,
+    ResponseId,
+    StartupConfig,
     Trigger,
 )
 from viena.services.gnss.model.fix import fix_from_bestxyz, fix_from_nmea
 from viena.services.gnss.simulator import NovatelTwin
-from viena.common.twin.serial_port import SerialEndpoint
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(60)]  # receivers and twins talk in real time
 

@@ -72,7 +72,7 @@ def test_a_glonass_only_gga_never_replaces_the_gps_solution():
                       f"GLGGA,{t},3844.9999,N,00908.9999,W,1,02,9.9,120.0,M,50.0,M,,",
                       "GPGSA,A,3,02,05,12,13,15,18,25,29,,,,,1.8,1.0,1.5",
                       "GLGSA,A,2,65,71,,,,,,,,,,,9.9,9.9,9.9",
-                      f"GPRMC,120005.10,A,3844.2140,N,00908.3700,W,0.0,,231126,,,A")
+                      "GPRMC,120005.10,A,3844.2140,N,00908.3700,W,0.0,,231126,,,A")
     fix = fixes[0]
     assert fix.talker == "GP" and fix.lat_deg == pytest.approx(38 + 44.214 / 60)
     assert fix.sats_used == 10 and fix.fix_mode == 3 and fix.hdop == pytest.approx(1.0)
@@ -94,7 +94,7 @@ def test_nmea_4_10_system_and_signal_ids():
         "GAGSV,2,1,05,02,40,080,40,05,60,150,42,07,30,300,38,11,20,045,35,7",
         "GAGSV,2,2,05,30,10,100,,7",
         "GBGSV,1,1,04,19,40,080,40,20,60,150,42,22,30,300,38,35,20,045,35,1",
-        f"GNRMC,120005.10,A,3844.2140,N,00908.3700,W,0.10,45.0,231126,,,D,V")
+        "GNRMC,120005.10,A,3844.2140,N,00908.3700,W,0.10,45.0,231126,,,D,V")
     fix = fixes[0]
     assert fix.sats_used == 16                 # Galileo 2 and 5 are not GPS 2 and 5
     assert fix.sats_in_view == 20

@@ -5,14 +5,41 @@ from __future__ import annotations
 import struct
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns
 from viena.services.gnss.driver.novatel import (
-    COMMANDS, BestPos, BestVel, BestXyz, BodyError, Com, DynamicsCommand, FrameDecoder, Header,
-    Log, MessageId, Port, PositionType, Reset, Response, ResponseId, SaveConfig, SbasControl,
-    SbasKeyword, SbasSystem, SolutionStatus, TimeStatus, Trigger, Unlog, Unlogall, crc32,
-    decode_command, decode_log, encode_frame, encode_log,
+    COMMANDS,
+    BestPos,
+    BestVel,
+    BestXyz,
+    BodyError,
+    Com,
+    DynamicsCommand,
+    FrameDecoder,
+    Header,
+    Log,
+    MessageId,
+    Port,
+    PositionType,
+    Reset,
+    Response,
+    ResponseId,
+    SaveConfig,
+    SbasControl,
+    SbasKeyword,
+    SbasSystem,
+    SolutionStatus,
+    TimeStatus,
+    Trigger,
+    Unlog,
+    Unlogall,
+    crc32,
+    decode_command,
+    decode_log,
+    encode_frame,
+    encode_log,
 )
 from viena.services.gnss.driver.novatel.enums import Dynamics
 

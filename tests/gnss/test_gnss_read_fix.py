@@ -10,7 +10,13 @@ from viena.common.schema import FieldError
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns
 from viena.services.gnss.driver.nmea import NmeaFix
 from viena.services.gnss.driver.novatel import (
-    BestPos, BestVel, BestXyz, Header, LogMessage, PositionType, SolutionStatus,
+    BestPos,
+    BestVel,
+    BestXyz,
+    Header,
+    LogMessage,
+    PositionType,
+    SolutionStatus,
 )
 from viena.services.gnss.model.fix import FIX, Fix, fix_from_bestpos, fix_from_bestxyz, fix_from_nmea, read_fix
 

@@ -8,10 +8,14 @@ from datetime import datetime
 
 import numpy as np
 import pytest
-
 from gnss_helpers import SHARED_CSV, TwinHarness, read_csv, start_twin
+
 from viena.services.gnss.driver.novatel import (
-    Log, MessageId, NovatelReceiver, StartupConfig, Trigger,
+    Log,
+    MessageId,
+    NovatelReceiver,
+    StartupConfig,
+    Trigger,
 )
 from viena.services.gnss.model.fix import fix_from_bestxyz
 from viena.services.gnss.simulator import DRIVE_CSV, NovatelTwin, load_drive

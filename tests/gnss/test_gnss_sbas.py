@@ -9,17 +9,29 @@ import struct
 import time
 
 import pytest
-
 from gnss_helpers import TwinHarness, still
+from vienatest import collect, wait_until
+
 from viena.common.health import HEALTH
 from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.gnss.driver.novatel import (
-    AsciiFrame, FrameDecoder, Log, MessageId, NovatelReceiver, SbasControl, SbasKeyword,
-    StartupConfig, Trigger, check_sbas, config_entry, crc32, message_of, sbas_keyword_value,
+    AsciiFrame,
+    FrameDecoder,
+    Log,
+    MessageId,
+    NovatelReceiver,
+    SbasControl,
+    SbasKeyword,
+    StartupConfig,
+    Trigger,
+    check_sbas,
+    config_entry,
+    crc32,
+    message_of,
+    sbas_keyword_value,
 )
 from viena.services.gnss.driver.novatel.ascii import AsciiError, parse_ascii
 from viena.services.gnss.simulator import NovatelTwin
-from vienatest import collect, wait_until
 
 #: vol. 2 §3.4.84, ASCII example of RXCONFIG: three of its logs, verbatim (each one line)
 MANUAL_RXCONFIGA = [

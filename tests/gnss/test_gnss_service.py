@@ -10,13 +10,13 @@ import time
 
 import numpy as np
 import pytest
-
-from vienatest import Processes, collect, free_port, wait_for_port
 from gnss_helpers import ORIGIN_ECEF, still
+from vienatest import Processes, collect, free_port, wait_for_port
+
 from viena.common.health import HEALTH
+from viena.common.twin.serial_port import SerialEndpoint, TwinWrapper
 from viena.services.gnss.model.fix import FIX
 from viena.services.gnss.simulator import NmeaTwin, NovatelTwin
-from viena.common.twin.serial_port import SerialEndpoint, TwinWrapper
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(90)]  # the service as a process
 

@@ -8,12 +8,15 @@ from types import SimpleNamespace
 import numpy as np
 import pymap3d
 import pytest
-
 from gnss_helpers import TwinHarness, still
+
 from viena.services.gnss.driver.novatel import Log, MessageId, Trigger
 from viena.services.gnss.simulator import NovatelTwin, make_novatel_device
 from viena.services.gnss.simulator.errors import (
-    CEP_PER_SIGMA, SEED_TABLE_5_2, CommonErrors, GnssErrorModel,
+    CEP_PER_SIGMA,
+    SEED_TABLE_5_2,
+    CommonErrors,
+    GnssErrorModel,
 )
 from viena.services.sim.model.car import SimCar
 from viena.services.sim.model.truth import IST_ORIGIN

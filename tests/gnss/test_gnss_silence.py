@@ -7,12 +7,12 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import pytest
-
 from gnss_helpers import TwinHarness, still
+
 from viena.common.health import Health
+from viena.common.settings import from_mapping
 from viena.common.silence import SilenceWatch
 from viena.services.gnss.driver.novatel import Log, MessageId, Trigger
-from viena.common.settings import from_mapping
 from viena.services.gnss.service import GnssSettings, NmeaSource, NovatelSource
 from viena.services.gnss.simulator import NmeaTwin, NovatelTwin
 

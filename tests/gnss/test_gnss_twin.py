@@ -8,12 +8,25 @@ import struct
 import numpy as np
 import pymap3d
 import pytest
-
 from gnss_helpers import HARNESS_GPS_MS, TwinHarness, still
+
 from viena.services.gnss.driver.nmea import NmeaDecoder
 from viena.services.gnss.driver.novatel import (
-    Com, DynamicsCommand, Header, Log, MessageId, Port, Reset, ResponseId, SaveConfig,
-    SbasControl, SbasKeyword, Trigger, Unlog, Unlogall, encode_frame,
+    Com,
+    DynamicsCommand,
+    Header,
+    Log,
+    MessageId,
+    Port,
+    Reset,
+    ResponseId,
+    SaveConfig,
+    SbasControl,
+    SbasKeyword,
+    Trigger,
+    Unlog,
+    Unlogall,
+    encode_frame,
 )
 from viena.services.gnss.model.fix import fix_from_bestpos, fix_from_bestxyz, fix_from_nmea
 from viena.services.gnss.simulator import NmeaTwin, NovatelTwin

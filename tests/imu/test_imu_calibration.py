@@ -8,11 +8,15 @@ import numpy as np
 import pytest
 
 from viena.common.errors import ConfigError
-from viena.services.imu.model import fitting
 from viena.services.imu.calibration_cli import fit_accel, fit_gyro, fit_magnetometer, main
 from viena.services.imu.calibration_file import load_calibration, save_calibration
-from viena.services.imu.model.calibration import (HMC5843_TESLA_PER_COUNT, ImuCalibration, SampleCalibrator,
-                                                  seed_calibration)
+from viena.services.imu.model import fitting
+from viena.services.imu.model.calibration import (
+    HMC5843_TESLA_PER_COUNT,
+    ImuCalibration,
+    SampleCalibrator,
+    seed_calibration,
+)
 from viena.services.imu.model.fitting import FitError
 from viena.services.imu.recordings import save_recording
 from viena.services.imu.simulator import RazorBoard, RazorTwin

@@ -5,14 +5,13 @@ import threading
 
 import pytest
 
+from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.imu.calibration_cli import main
 from viena.services.imu.driver import Frame, Reading
-from viena.services.imu.recordings import load_recording
-from viena.services.imu.model.sample import SAMPLE, SampleBuilder
 from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
+from viena.services.imu.model.sample import SAMPLE, SampleBuilder
+from viena.services.imu.recordings import load_recording
 from viena.services.imu.simulator import RazorAhrsTwin, RazorBoard, RazorReplayTwin, RazorTwin, make_twin
-from viena.common.twin.serial_port import SerialEndpoint
-
 from viena.services.imu.simulator.scenarios import fixed_truth
 
 
@@ -35,8 +34,9 @@ def test_record_and_fit_from_a_device_port(tmp_path, capsys):
 
 def test_fit_live_from_the_running_services_samples(router, session, capsys):
     """Publish samples as viena-imu does, and let the command collect their raw values."""
-    from viena.common.keys import Keys
     import zenoh
+
+    from viena.common.keys import Keys
 
     builder = SampleBuilder("razor0", "viena", SampleCalibrator(seed_calibration()))
     pub = session.declare_publisher(Keys().key("imu", "razor0", "sample"),

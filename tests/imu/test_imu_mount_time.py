@@ -10,9 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.imu import LEVER_ARM_M, mounted_drive as drive
+from benchmarks.imu import LEVER_ARM_M
+from benchmarks.imu import mounted_drive as drive
 from benchmarks.simdrive import Drive, DriveSamples
 from viena.recording import RecordingWriter
+from viena.services.gnss.model.fix import FIX
 from viena.services.imu.calibration_cli import main as calibrate
 from viena.services.imu.calibration_file import load_calibration
 from viena.services.imu.driver import Frame, Reading
@@ -20,7 +22,6 @@ from viena.services.imu.model.calibration import SampleCalibrator, seed_calibrat
 from viena.services.imu.model.mount import Mount
 from viena.services.imu.model.sample import SAMPLE
 from viena.services.imu.simulator import RazorBoard
-from viena.services.gnss.model.fix import FIX
 
 pytestmark = pytest.mark.slow
 LEVER_ARM = tuple(str(x) for x in LEVER_ARM_M)      # simdrive's antenna, from the rear axle

@@ -7,11 +7,10 @@ import struct
 import numpy as np
 import pytest
 
+from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.imu.driver import AhrsDecoder, RazorAhrs, SyncError
 from viena.services.imu.driver.razor_ahrs import from_board, sync_reply, to_board
 from viena.services.imu.simulator import RazorAhrsTwin, RazorBoard
-from viena.common.twin.serial_port import SerialEndpoint
-
 from viena.services.imu.simulator.scenarios import fixed_truth
 
 
@@ -94,7 +93,7 @@ def test_driver_synchronises_with_the_twin_through_its_boot(output):
 
 @pytest.mark.slow  # waits out the sync timeouts
 def test_silence_is_a_sync_error():
-    from viena.services.imu.simulator import RazorTwin          # the VIENA firmware never answers
+    from viena.services.imu.simulator import RazorTwin  # the VIENA firmware never answers
     endpoint = SerialEndpoint(RazorTwin(lambda: fixed_truth(yaw=0.3, gyro=(0, 0, 0.1)), boot_s=0.0)).start()
     try:
         with pytest.raises(SyncError, match="no #SYNCH"):

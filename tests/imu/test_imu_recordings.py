@@ -6,14 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
+from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.imu.driver import Frame, Razor, Reading
+from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
 from viena.services.imu.model.glitch import MagGlitchFilter
-from viena.services.imu.recordings import PARKED, load_parked
 from viena.services.imu.model.sample import SAMPLE, SampleBuilder
+from viena.services.imu.recordings import PARKED, load_parked
 from viena.services.imu.simulator import BANNER, RazorReplayTwin
 from viena.services.imu.simulator.scenarios import Script, record_twin
-from viena.common.twin.serial_port import SerialEndpoint
 
 G_LISBON = 9.8006          # WGS84 normal gravity at IST, 100 m
 SEED = SampleCalibrator(seed_calibration())

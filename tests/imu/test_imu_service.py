@@ -7,14 +7,13 @@ import threading
 
 import numpy as np
 import pytest
+from vienatest import wait_until
 
 from viena.common.health import HEALTH
-from vienatest import wait_until
+from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.imu.driver import encode_frame
 from viena.services.imu.model.sample import SAMPLE
 from viena.services.imu.simulator import RazorAhrsTwin, RazorTwin
-from viena.common.twin.serial_port import SerialEndpoint
-
 from viena.services.imu.simulator.scenarios import fixed_truth
 
 pytestmark = pytest.mark.slow  # the service as a process

@@ -4,11 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
-from viena.services.imu.driver import Razor, encode_frame
-from viena.services.imu.simulator import BANNER, RazorTwin
 from viena.common.twin.serial_port import SerialEndpoint
-
+from viena.services.imu.driver import Razor, encode_frame
+from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
+from viena.services.imu.simulator import BANNER, RazorTwin
 from viena.services.imu.simulator.scenarios import fixed_truth
 
 pytestmark = pytest.mark.slow  # the twin boots and streams over a socket in real time

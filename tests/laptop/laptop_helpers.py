@@ -8,9 +8,9 @@ from pathlib import Path
 
 import msgpack
 import numpy as np
+from vienatest import VIENA, viena  # noqa: F401  (the laptop tests import them from here)
 
 from viena.recording import RecordingWriter
-from vienatest import VIENA, viena  # noqa: F401  (the laptop tests import them from here)
 
 TRUTH_KEY = "viena/elettra/sim/truth"
 SIM_HEALTH_KEY = "viena/elettra/sim/health"

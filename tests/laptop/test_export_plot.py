@@ -8,8 +8,8 @@ import math
 import msgpack
 import numpy as np
 import pytest
-
 from laptop_helpers import TRUTH_KEY, viena, write_drive, yaw_deg
+
 from viena.export import flatten
 from viena.plot import load_drive
 from viena.recording import Recording, RecordingWriter

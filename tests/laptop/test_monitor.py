@@ -7,10 +7,10 @@ import signal
 import time
 
 import pytest
-from rich.console import Console
-
 from laptop_helpers import SIM_HEALTH_KEY, start_sim, viena, wait_for_samples
+from rich.console import Console
 from vienatest import wait_until
+
 from viena.monitor import LiveFeed, MonitorModel, render
 
 HEALTH = {"t": 1, "seq": 3, "service": "gnss", "unit": "gnss0", "uptime_s": 12.0,

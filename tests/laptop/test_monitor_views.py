@@ -6,7 +6,8 @@ import ast
 from pathlib import Path
 
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import viena.monitor
 from viena.common.display import Alert

@@ -7,11 +7,10 @@ import time
 
 import msgpack
 import pytest
-from mcap.reader import make_reader
-
-from vienatest import (Processes, open_session, start_router, wait_for_line, wait_for_subscriber,
-                       wait_until)
 from laptop_helpers import SIM_HEALTH_KEY, TRUTH_KEY, VIENA, start_sim, viena, wait_for_samples
+from mcap.reader import make_reader
+from vienatest import Processes, open_session, start_router, wait_for_line, wait_for_subscriber, wait_until
+
 from viena.recording import Recording
 
 pytestmark = pytest.mark.slow  # a router, the sim and the CLI as processes

@@ -7,8 +7,8 @@ import signal
 
 import numpy as np
 import pytest
-
 from vienatest import free_port, open_session, start_router, wait_for_subscriber, wait_until
+
 from viena.paths import compose_dir
 from viena.recording import KeyFilter, Recording
 from viena.services.estimator.state import STATE

@@ -3,8 +3,8 @@ real key material), and a TLS router that enforces it."""
 from __future__ import annotations
 
 import pytest
-
 from vienatest import free_port, wait_for_port
+
 from viena.common.keystore import KeyStore
 
 

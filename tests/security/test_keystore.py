@@ -81,7 +81,7 @@ def test_a_person_is_issued_and_listed(fresh, capsys):
     status, out, _ = run_keys(capsys, fresh.dir, "issue", "observer", "bob", "--days", "30")
     assert status == 0 and "issued 'bob' (observer)" in out
     status, out, _ = run_keys(capsys, fresh.dir, "list")
-    line = next(l for l in out.splitlines() if l.startswith("bob"))
+    line = next(row for row in out.splitlines() if row.startswith("bob"))
     assert "observer" in line and "expires in" in line       # within the 30-day warning
 
 
@@ -120,7 +120,7 @@ def test_loose_key_permissions(fresh):
 
 
 def test_expired_certificate(fresh):
-    long_ago = dt.datetime.now(dt.timezone.utc) - dt.timedelta(days=40)
+    long_ago = dt.datetime.now(dt.UTC) - dt.timedelta(days=40)
     fresh.issue("pilot", "old", days=10, valid_from=long_ago)
     with pytest.raises(SecurityError, match=r"old\.pem: expired on .*viena keys issue pilot old --force"):
         fresh.identity("old")

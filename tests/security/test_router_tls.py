@@ -10,8 +10,8 @@ from contextlib import contextmanager
 
 import pytest
 import zenoh
-
 from vienatest import free_port, wait_for_queryable, wait_for_subscriber
+
 from viena.common.config import load_zenoh_config
 from viena.common.keystore import KeyStore
 from viena.common.secure import secure_client
@@ -85,7 +85,7 @@ def test_certificate_of_another_ca_gets_no_session(store, tls_router, tmp_path):
 
 
 def test_expired_certificate_gets_no_session(store, tls_router):
-    long_ago = dt.datetime.now(dt.timezone.utc) - dt.timedelta(days=40)
+    long_ago = dt.datetime.now(dt.UTC) - dt.timedelta(days=40)
     expired = store.issue("pilot", "expired-pilot", days=10, valid_from=long_ago)
     with pytest.raises(zenoh.ZError):
         zenoh.open(raw_client(tls_router, expired.cert, expired.key, ca=store.ca_cert))

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 import zenoh
-
 from vienatest import collect, collect_until, wait_for_port, wait_for_subscriber
+
 from viena.common.config import load_zenoh_config
 from viena.common.health import HEALTH
 from viena.common.secure import secure_client
@@ -166,9 +166,9 @@ def test_the_zenoh_cli_works_as_the_readme_shows(store, car, tmp_path):
 
     for line in readme_lines("viena keys zenoh-config"):
         assert sh(line).returncode == 0, line
-    pilot_arm = next(l for l in readme_lines("zenoh --config pilot.json5 get -s viena/elettra/steering/arm"))
-    observer_arm = next(l for l in readme_lines("zenoh --config observer.json5 get -s viena/elettra/steering/arm"))
-    estop = next(l for l in readme_lines("zenoh --config observer.json5 put -k viena/elettra/steering/estop"))
+    pilot_arm = next(iter(readme_lines("zenoh --config pilot.json5 get -s viena/elettra/steering/arm")))
+    observer_arm = next(iter(readme_lines("zenoh --config observer.json5 get -s viena/elettra/steering/arm")))
+    estop = next(iter(readme_lines("zenoh --config observer.json5 put -k viena/elettra/steering/estop")))
 
     with session_as(store, car, "observer") as observer:
         wait_steering_ready(observer)

@@ -9,8 +9,8 @@ import itertools
 
 import canopen
 import pytest
-
 from steering_helpers import SimClock
+
 from viena.services.steering.driver import DriveSettings, EposDrive
 from viena.services.steering.simulator.epos_twin import EposTwin, TwinSettings
 
@@ -40,7 +40,7 @@ class Rig:
             if heartbeat:
                 seen = self.drive.feedback().count
                 self.drive.cycle()
-                assert self.drive.wait_feedback(lambda fb: fb.count >= seen + 2, 1.0), "no TPDO answer"
+                assert self.drive.wait_feedback(lambda fb, seen=seen: fb.count >= seen + 2, 1.0), "no TPDO answer"
             else:
                 self.twin.step()
 

@@ -14,9 +14,9 @@ import threading
 
 import canopen
 
-from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.controller import ControllerSettings, SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
+from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.model.safety import Envelope
 from viena.services.steering.simulator.epos_twin import EposTwin, TwinSettings
 
@@ -45,7 +45,7 @@ class SimTimers:
         self.tasks: list[_Periodic] = []
         network.send_periodic = self.send_periodic
 
-    def send_periodic(self, can_id: int, data, period: float, remote: bool = False) -> "_Periodic":
+    def send_periodic(self, can_id: int, data, period: float, remote: bool = False) -> _Periodic:
         task = _Periodic(self, can_id, bytes(data), period, self.clock.t)
         self.tasks.append(task)
         return task

@@ -8,9 +8,9 @@ import time
 
 import can
 import pytest
+from vienatest import wait_until
 
 from viena.common.twin.slcan_hub import SlcanHub, format_frame, parse_frame
-from vienatest import wait_until
 
 _n = itertools.count()
 

@@ -11,8 +11,8 @@ import time
 import msgpack
 import pytest
 import zenoh
-
 from test_steering_service import KEY, get, service, twin  # noqa: F401  (fixtures)
+
 from viena.services.steering.client import ConflictingReplies, SteeringClient
 
 pytestmark = pytest.mark.slow
@@ -124,8 +124,9 @@ def test_a_setpoint_flood_from_others_never_starves_the_owner(service, session, 
 
 def test_after_a_restart_the_service_says_why_the_drive_is_in_fault(service, session, twin, procs, router,
                                                                       tmp_path):
-    from viena.services.steering.driver import ds402
     from vienatest import wait_until
+
+    from viena.services.steering.driver import ds402
 
     proc, latest, until = service
     lease = arm(session)

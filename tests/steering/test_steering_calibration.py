@@ -7,9 +7,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from viena.services.steering.model.calibration import (Calibration, CalibrationRefused, CalibrationSettings,
-                                                 SweepRecorder, check_calibration, read_calibration_txt,
-                                                 zero_ref)
+from viena.services.steering.model.calibration import (
+    Calibration,
+    CalibrationRefused,
+    CalibrationSettings,
+    SweepRecorder,
+    check_calibration,
+    read_calibration_txt,
+    zero_ref,
+)
 
 LOGS = Path(__file__).resolve().parents[3] / "shared/data/steering/encoder_logs"
 needs_logs = pytest.mark.skipif(not LOGS.is_dir(), reason="shared/data/steering not present")
@@ -102,7 +108,7 @@ def test_a_sweep_completes_when_the_wheel_is_back_in_the_middle_and_still():
     rec = SweepRecorder()
     t = sweep(rec, [1500, 49_100, -46_100, 1500])
     assert not rec.done(t)                            # just arrived: not still yet
-    for k in range(60):
+    for _ in range(60):
         t += 0.01
         rec.add(1500, t)
     assert rec.done(t)

@@ -9,8 +9,8 @@ process in test_steering_service.py.
 from __future__ import annotations
 
 import pytest
-
 from steering_helpers import SimSteering as Steering
+
 from viena.services.steering.driver import ds402
 
 

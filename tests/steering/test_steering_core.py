@@ -14,12 +14,20 @@ from pathlib import Path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from viena.services.steering.model.actions import (Command, Configure, Connect, Cycle, DriveReading, Reply,
-                                             SendTarget, WriteLimits)
-from viena.services.steering.model.calibration import CalibrationSettings
-from viena.services.steering.model.core import ControllerSettings, Phase, SteeringCore
 from viena.services.steering.driver import Emcy, ds402
 from viena.services.steering.driver.epos import NMT_OPERATIONAL, POSITION_MODE, Feedback
+from viena.services.steering.model.actions import (
+    Command,
+    Configure,
+    Connect,
+    Cycle,
+    DriveReading,
+    Reply,
+    SendTarget,
+    WriteLimits,
+)
+from viena.services.steering.model.calibration import CalibrationSettings
+from viena.services.steering.model.core import ControllerSettings, Phase, SteeringCore
 from viena.services.steering.model.requests import parse_request
 from viena.services.steering.model.safety import Envelope
 from viena.services.steering.model.state import sample
@@ -76,7 +84,7 @@ class Bench:
                 return actions
         raise AssertionError(f"the sweep did not complete: {self.core.recorder.status()}")
 
-    def ready(self) -> "Bench":
+    def ready(self) -> Bench:
         self.configured()
         (write,) = [a for a in self.sweep() if isinstance(a, WriteLimits)]
         self.core.limits_written(self.t, write.calibration)

@@ -6,8 +6,16 @@ import math
 
 import pytest
 
-from viena.services.steering.model.requests import (Arm, BadSetpoint, CalibrationRequest, Disarm, Estop, Refused,
-                                              Setpoint, parse_request)
+from viena.services.steering.model.requests import (
+    Arm,
+    BadSetpoint,
+    CalibrationRequest,
+    Disarm,
+    Estop,
+    Refused,
+    Setpoint,
+    parse_request,
+)
 
 
 @pytest.mark.parametrize("kind, payload, typed", [

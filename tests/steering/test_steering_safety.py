@@ -10,8 +10,15 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from viena.services.steering.model.requests import parse_setpoint
-from viena.services.steering.model.safety import (ACCEPTED, CLAMPED, REJECTED, DecisionLog, Envelope,
-                                            SafetySettings, lease_hash)
+from viena.services.steering.model.safety import (
+    ACCEPTED,
+    CLAMPED,
+    REJECTED,
+    DecisionLog,
+    Envelope,
+    SafetySettings,
+    lease_hash,
+)
 
 RANGE = (-29.0, 29.0)
 PERIOD = 0.01                         # the control loop's tick

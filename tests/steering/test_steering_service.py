@@ -10,12 +10,12 @@ import time
 
 import msgpack
 import pytest
-
 from vienatest import wait_until
+
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import LIFE_GUARD_ERROR
-from viena.services.steering.simulator import TwinSettings, start_twin_on_hub
 from viena.services.steering.model.state import STATE
+from viena.services.steering.simulator import TwinSettings, start_twin_on_hub
 
 pytestmark = pytest.mark.slow  # the service as a process
 

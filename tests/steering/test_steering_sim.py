@@ -5,16 +5,16 @@ import math
 import types
 
 import pytest
+from vienatest import wait_until
 
 from viena.common.errors import ConfigError
-from vienatest import wait_until
 from viena.services.sim.model.car import SimCar
-from viena.services.steering.model.calibration import CalibrationSettings
+from viena.services.sim.service import SimSettings
 from viena.services.steering.controller import SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
+from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.model.safety import Envelope
 from viena.services.steering.simulator import make_epos_device
-from viena.services.sim.service import SimSettings
 
 FAST = {"sweep_speed_qc_s": 400_000.0, "sweep_delay_s": 0.1, "sweep_hold_s": 0.05}
 

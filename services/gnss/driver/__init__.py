@@ -7,8 +7,15 @@
 from .gpstime import gps_to_utc_ns, utc_to_gps
 from .nmea import NmeaDecoder, NmeaFix, NmeaReceiver
 from .novatel import (
-    BestPos, BestVel, BestXyz, CommandError, CommandTimeout, LogMessage, LogRequest,
-    NovatelReceiver, StartupConfig,
+    BestPos,
+    BestVel,
+    BestXyz,
+    CommandError,
+    CommandTimeout,
+    LogMessage,
+    LogRequest,
+    NovatelReceiver,
+    StartupConfig,
 )
 
 __all__ = [name for name in dir() if not name.startswith("_")]

@@ -24,8 +24,8 @@ import datetime as dt
 import logging
 import math
 import queue
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import pynmea2
 
@@ -393,7 +393,7 @@ class NmeaReceiver:
         self._reader.stop()
         self._link.close()
 
-    def __enter__(self) -> "NmeaReceiver":
+    def __enter__(self) -> NmeaReceiver:
         return self
 
     def __exit__(self, *exc) -> None:

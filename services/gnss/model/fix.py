@@ -20,7 +20,6 @@ import pymap3d
 from viena.common.display import fmt_num, norm, number
 from viena.common.geodesy import geodetic_of_ecef
 from viena.common.schema import F, FieldError, Schema
-
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns, utc_to_gps
 from viena.services.gnss.driver.nmea import NmeaFix
 from viena.services.gnss.driver.novatel import BestPos, BestVel, BestXyz, LogMessage, MessageId, TimeStatus
@@ -93,7 +92,7 @@ class Fix(NamedTuple):
         return (self.vel_ecef_mps is not None and self.vel_status == SOL_COMPUTED
                 and self.vel_type != "NONE")
 
-    def without_velocity(self) -> "Fix":
+    def without_velocity(self) -> Fix:
         return self._replace(vel_ecef_mps=None, vel_sigma_mps=None)
 
 

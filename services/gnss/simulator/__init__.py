@@ -49,7 +49,7 @@ TWIN_SETTINGS = {
 }
 
 #: one sky per simulated car
-_SKIES: "weakref.WeakKeyDictionary[object, CommonErrors]" = weakref.WeakKeyDictionary()
+_SKIES: weakref.WeakKeyDictionary[object, CommonErrors] = weakref.WeakKeyDictionary()
 
 
 def car_sky(car, seed: int) -> CommonErrors:

@@ -9,14 +9,14 @@ empty position fields, RMC status V. Input (UBX or PUBX configuration) is ignore
 from __future__ import annotations
 
 import math
-from datetime import datetime, timezone
-from typing import Callable
+from collections.abc import Callable
+from datetime import UTC, datetime
 
 import numpy as np
 import pynmea2
 
-from viena.services.gnss.driver.gpstime import gps_to_utc_ns
 from viena.common.twin.serial_port import ByteTwin
+from viena.services.gnss.driver.gpstime import gps_to_utc_ns
 
 from .clock import WEEK_MS, GpsClock
 from .errors import CommonErrors, GnssErrorModel, SkyModel
@@ -53,7 +53,7 @@ def _sentence(talker: str, kind: str, fields) -> bytes:
 
 def nmea_epoch(solution: Solution, utc_ns: int, talker: str = "GP") -> bytes:
     """One epoch's sentences for a solution, as a u-blox M8 writes them."""
-    utc = datetime.fromtimestamp(utc_ns / 1e9, tz=timezone.utc)
+    utc = datetime.fromtimestamp(utc_ns / 1e9, tz=UTC)
     hms = utc.strftime("%H%M%S.") + f"{utc.microsecond // 10000:02d}"
     date = utc.strftime("%d%m%y")
     fix = solution.has_fix

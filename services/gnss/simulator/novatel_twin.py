@@ -27,27 +27,57 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 
+from viena.common.twin.serial_port import ByteTwin
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns
 from viena.services.gnss.driver.novatel.ascii import ascii_line, rxconfig_text
 from viena.services.gnss.driver.novatel.commands import (
-    COMMANDS, BodyError, Com, Command, DynamicsCommand, Log, Reset, Response, SaveConfig,
-    SbasControl, Unlog, Unlogall, sbas_keyword_value,
+    COMMANDS,
+    BodyError,
+    Com,
+    Command,
+    DynamicsCommand,
+    Log,
+    Reset,
+    Response,
+    SaveConfig,
+    SbasControl,
+    Unlog,
+    Unlogall,
+    sbas_keyword_value,
 )
 from viena.services.gnss.driver.novatel.enums import (
-    COM_BAUDS, RESPONSE_TEXT, ComPort, Dynamics, MessageFormat, MessageId, Port, PositionType,
-    ResponseId, SbasKeyword, SbasSystem, SbasTestMode, TimeStatus, Trigger,
+    COM_BAUDS,
+    RESPONSE_TEXT,
+    ComPort,
+    Dynamics,
+    MessageFormat,
+    MessageId,
+    Port,
+    PositionType,
+    ResponseId,
+    SbasKeyword,
+    SbasSystem,
+    SbasTestMode,
+    TimeStatus,
+    Trigger,
 )
 from viena.services.gnss.driver.novatel.framing import (
-    BINARY_MESSAGE_TYPE, CRC_LENGTH, HEADER_LENGTH, MAX_BODY_LENGTH, SYNC, Header, crc32,
-    encode_frame, unpack_header,
+    BINARY_MESSAGE_TYPE,
+    CRC_LENGTH,
+    HEADER_LENGTH,
+    MAX_BODY_LENGTH,
+    SYNC,
+    Header,
+    crc32,
+    encode_frame,
+    unpack_header,
 )
 from viena.services.gnss.driver.novatel.logs import BestPos, BestVel, BestXyz
-from viena.common.twin.serial_port import ByteTwin
 
 from .clock import WEEK_MS, GpsClock
 from .errors import CommonErrors, GnssErrorModel, SkyModel

@@ -17,9 +17,9 @@ import threading
 
 import numpy as np
 
+from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.sim.model.car import SimCar
 from viena.services.sim.model.truth import IST_ORIGIN, Truth
-from viena.common.twin.serial_port import SerialEndpoint
 
 from .nmea_twin import NmeaTwin
 from .novatel_twin import NovatelTwin

@@ -7,8 +7,8 @@ at the antenna's lever arm; the drive replay (replay.py) reads the car's 2016 re
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 import pymap3d

@@ -6,8 +6,7 @@
     ...         print(reading.seq, reading.frame.accel_g)
 """
 from viena.services.imu.driver.crc import crc8_maxim
-from viena.services.imu.driver.frames import (FRAME_SIZE, DecoderStats, Frame, FrameDecoder,
-                                              decode_frame, encode_frame)
+from viena.services.imu.driver.frames import FRAME_SIZE, DecoderStats, Frame, FrameDecoder, decode_frame, encode_frame
 from viena.services.imu.driver.razor import Razor
 from viena.services.imu.driver.razor_ahrs import AhrsDecoder, RazorAhrs, SyncError
 from viena.services.imu.driver.serial_imu import Reading, SerialImu

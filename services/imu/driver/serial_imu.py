@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from typing import Iterator, NamedTuple
+from collections.abc import Iterator
+from typing import NamedTuple
 
 from viena.common.link import SerialLink
 from viena.services.imu.driver.frames import Frame
@@ -52,7 +53,7 @@ class SerialImu:
         self._seq = -1
 
     # -- opening and closing -------------------------------------------------------------
-    def open(self) -> "SerialImu":
+    def open(self) -> SerialImu:
         """Open the port and get the stream going; raises serial.SerialException (OSError)."""
         self.link.open()
         self._received = 0

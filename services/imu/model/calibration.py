@@ -24,8 +24,8 @@ import numpy as np
 
 from viena.common.errors import ConfigError
 from viena.services.imu.driver.razor_ahrs import ACCEL_PER_G, DEFAULT_MAGN_SCALE
-from viena.services.imu.model.mount import Mount
 from viena.services.imu.model.fitting import AccelFit, GyroBiasFit, MagFit, ellipse_c_inv
+from viena.services.imu.model.mount import Mount
 
 MAX_TIME_OFFSET_S = 5.0
 STANDARD_GRAVITY = 9.80665                     # m/s^2 per g
@@ -70,29 +70,29 @@ class ImuCalibration:
     info: dict = field(default_factory=dict, compare=False)   # fit reports, kept in the file
 
     # -- updating from fits -----------------------------------------------------------------
-    def with_accel(self, fit: AccelFit) -> "ImuCalibration":
+    def with_accel(self, fit: AccelFit) -> ImuCalibration:
         return dataclasses.replace(self, accel_gain_lsb_per_g=_vec(fit.gain_lsb_per_g),
                                    accel_offset_lsb=_vec(fit.offset_lsb),
                                    info={**self.info, "accel": {
                                        "rms_residual_g": list(fit.rms_residual_g),
                                        "samples": dict(fit.samples)}})
 
-    def with_gyro(self, fit: GyroBiasFit) -> "ImuCalibration":
+    def with_gyro(self, fit: GyroBiasFit) -> ImuCalibration:
         return dataclasses.replace(self, gyro_bias_dps=_vec(fit.bias_dps),
                                    info={**self.info, "gyro": {"std_dps": list(fit.std_dps),
                                                                 "samples": fit.samples}})
 
-    def with_mag(self, fit: MagFit) -> "ImuCalibration":
+    def with_mag(self, fit: MagFit) -> ImuCalibration:
         info = {"rms_residual": fit.rms_residual, "radius": fit.radius}
         info.update({k: v for k, v in fit.info.items() if k != "r_cal"})
         return dataclasses.replace(self, mag_offset=_vec(fit.offset), mag_c_inv=_mat(fit.c_inv),
                                    mag_method=fit.method, info={**self.info, "mag": info})
 
-    def with_mount(self, mount: Mount, report: dict) -> "ImuCalibration":
+    def with_mount(self, mount: Mount, report: dict) -> ImuCalibration:
         return dataclasses.replace(self, mount_zyx_deg=tuple(mount.zyx_deg),
                                    info={**self.info, "mount": report})
 
-    def with_time_offset(self, offset_s: float, report: dict) -> "ImuCalibration":
+    def with_time_offset(self, offset_s: float, report: dict) -> ImuCalibration:
         return dataclasses.replace(self, time_offset_s=float(offset_s),
                                    info={**self.info, "timing": report})
 
@@ -100,7 +100,7 @@ class ImuCalibration:
     def mount(self) -> Mount:
         return Mount(tuple(self.mount_zyx_deg))
 
-    def board_frame(self) -> "ImuCalibration":
+    def board_frame(self) -> ImuCalibration:
         """The same calibration without the mount: values in the board's own axes."""
         return dataclasses.replace(self, mount_zyx_deg=(0.0, 0.0, 0.0))
 
@@ -109,7 +109,7 @@ class ImuCalibration:
         """Undo the firmware's EEPROM calibration: frame g -> chip LSB."""
         return np.asarray(accel_g, float) * self.eeprom_gain_lsb_per_g + self.eeprom_offset_lsb
 
-    def validate(self, where: str = "calibration") -> "ImuCalibration":
+    def validate(self, where: str = "calibration") -> ImuCalibration:
         if self.firmware not in FIRMWARES:
             raise ConfigError(f"{where}: firmware must be one of {', '.join(FIRMWARES)}")
         for name in ("accel_gain_lsb_per_g", "eeprom_gain_lsb_per_g"):

@@ -53,13 +53,13 @@ class Mount:
         return all(a == 0.0 for a in self.zyx_deg)
 
     @classmethod
-    def of_matrix(cls, r: np.ndarray) -> "Mount":
+    def of_matrix(cls, r: np.ndarray) -> Mount:
         y = math.asin(max(-1.0, min(1.0, -float(r[2, 0]))))
         z = math.atan2(float(r[1, 0]), float(r[0, 0]))
         x = math.atan2(float(r[2, 1]), float(r[2, 2]))
         return cls(tuple(round(math.degrees(a), 4) for a in (z, y, x)))
 
-    def angle_to_deg(self, other: "Mount") -> float:
+    def angle_to_deg(self, other: Mount) -> float:
         """The angle of the rotation between two mounts: how far apart they are."""
         rel = self.matrix.T @ other.matrix
         return math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(rel) - 1) / 2))))

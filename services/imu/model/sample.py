@@ -10,8 +10,8 @@ from typing import NamedTuple
 
 from viena.common.display import fmt_num, fmt_vec, norm
 from viena.common.schema import F, Schema
-from viena.services.imu.model.calibration import SampleCalibrator
 from viena.services.imu.driver import Reading
+from viena.services.imu.model.calibration import SampleCalibrator
 from viena.services.imu.model.glitch import MagGlitchFilter
 
 SAMPLE = Schema("viena.imu.sample/1", {

@@ -58,5 +58,6 @@ def make_razor_device(name: str, table: dict, car, service) -> SerialEndpoint:
     return SerialEndpoint(twin, service.settings.host, s["port"], name).start()
 
 
-__all__ = ["make_razor_device", "TWIN_SETTINGS", "RazorBoard", "Measurement", "LISBON_FIELD_ENU_NT", "RazorTwin", "RazorReplayTwin",
+__all__ = ["make_razor_device", "TWIN_SETTINGS", "RazorBoard", "Measurement", "LISBON_FIELD_ENU_NT", "RazorTwin",
+           "RazorReplayTwin",
            "RazorAhrsTwin", "BANNER", "make_twin"]

@@ -18,10 +18,14 @@ from typing import NamedTuple
 import numpy as np
 
 from viena.common.rotation import euler_from_quat
-from viena.services.imu.model.calibration import (HMC5843_TESLA_PER_COUNT, STANDARD_GRAVITY,
-                                            TABLE_5_3_GAIN_LSB_PER_G, TABLE_5_3_OFFSET_LSB,
-                                            seed_calibration)
 from viena.services.imu.driver.razor_ahrs import GYRO_LSB_PER_DPS
+from viena.services.imu.model.calibration import (
+    HMC5843_TESLA_PER_COUNT,
+    STANDARD_GRAVITY,
+    TABLE_5_3_GAIN_LSB_PER_G,
+    TABLE_5_3_OFFSET_LSB,
+    seed_calibration,
+)
 from viena.services.imu.model.mount import Mount
 
 LISBON_FIELD_ENU_NT = (-1121.5, 26479.8, -34884.7)

@@ -13,9 +13,9 @@ must survive (tests and `viena bench imu`), on frames shaped like the car's own.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cache
-from typing import Sequence
 
 import numpy as np
 

@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import struct
 from collections import deque
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
+from viena.common.twin.serial_port import ByteTwin
 from viena.services.imu.driver.razor_ahrs import DEFAULT_MAGN_SCALE, from_board, sync_reply
 from viena.services.imu.simulator.board import RazorBoard
-from viena.common.twin.serial_port import ByteTwin
 
 RATE_HZ = 50.0
 _SENSOR_MODES = {b"r": "raw", b"c": "calibrated", b"b": "both"}

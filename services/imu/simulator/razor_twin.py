@@ -4,15 +4,15 @@ a reset (opening the port), then 52-byte CRC frames at the firmware's cadence.""
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
+from viena.common.twin.serial_port import ByteTwin
 from viena.services.imu.driver.frames import encode_frame
 from viena.services.imu.recordings import Recording, load_parked, load_recording
 from viena.services.imu.simulator.board import RazorBoard
-from viena.common.twin.serial_port import ByteTwin
 
 #: what the firmware prints at boot (VIENA-IST/AHRS src/main.cpp), Serial.println: CR LF
 BANNER = ("Initializing I2C devices...", "Testing device connections...",
@@ -129,7 +129,7 @@ class RazorReplayTwin(RazorTwin):
                       for i in range(len(r))]
 
     @classmethod
-    def parked(cls, name: str = "nocurrent", **kwargs) -> "RazorReplayTwin":
+    def parked(cls, name: str = "nocurrent", **kwargs) -> RazorReplayTwin:
         """One of the real parked-car recordings: nocurrent, speed_0hz, speed_10hz, speed_20hz."""
         return cls(load_parked(name), **kwargs)
 

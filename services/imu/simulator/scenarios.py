@@ -11,14 +11,14 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
+from viena.common.geodesy import normal_gravity
 from viena.common.rotation import quat_from_euler, quat_to_matrix
 from viena.services.imu.driver.frames import FrameDecoder
 from viena.services.imu.recordings import Recording
-from viena.common.geodesy import normal_gravity
 from viena.services.sim.model.truth import IST_ORIGIN, Truth
 
 #: attitude (yaw, pitch, roll) that puts each body axis up: '+x' reads +1 g on x

@@ -9,15 +9,15 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
+from viena.common.geodesy import normal_gravity
 from viena.common.rotation import quat_from_euler
 from viena.common.settings import setting
 from viena.services.sim.model.route import Route, default_route
-from viena.common.geodesy import normal_gravity
 from viena.services.sim.model.truth import IST_ORIGIN, Truth
 
 

@@ -88,7 +88,7 @@ class Emcy:
         return f"EMCY 0x{self.code:04X} {self.name}"
 
     @classmethod
-    def decode(cls, data: bytes) -> "Emcy":
+    def decode(cls, data: bytes) -> Emcy:
         """Parse an EMCY payload; short frames are padded (some stacks send fewer bytes)."""
         code, register, extra = _FRAME.unpack(bytes(data[:8]).ljust(8, b"\0"))
         return cls(code, register, extra)

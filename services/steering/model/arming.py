@@ -17,9 +17,9 @@ import logging
 from dataclasses import dataclass
 from enum import Enum
 
-from viena.services.steering.model.actions import Command, SendTarget
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.epos import Feedback
+from viena.services.steering.model.actions import Command, SendTarget
 
 log = logging.getLogger("viena.steering")
 
@@ -44,7 +44,7 @@ class ArmSequence:
 
     @classmethod
     def begin(cls, token, fb: Feedback, now_s: float, step_timeout_s: float,
-              fault: str = "") -> tuple["ArmSequence", list]:
+              fault: str = "") -> tuple[ArmSequence, list]:
         """The sequence for a drive in `fb`'s state, and its first frames."""
         seq = cls(token, step_timeout_s, since_s=now_s)
         if ds402.is_fault(fb.statusword):

@@ -23,26 +23,46 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from enum import Enum
+from enum import StrEnum
 
 from viena.common.settings import setting
-from viena.services.steering.model.actions import (Command, Configure, Connect, Cycle, DriveReading, Reply,
-                                             SendTarget, WriteLimits)
-from viena.services.steering.model.arming import ArmSequence
-from viena.services.steering.model.calibration import (Calibration, CalibrationRefused, CalibrationSettings,
-                                                 SweepRecorder)
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import Emcy
 from viena.services.steering.driver.epos import POSITION_MODE, DriveSettings, Feedback
-from viena.services.steering.model.requests import (Arm, BadSetpoint, CalibrationRequest, Disarm, Estop,
-                                              Refused, Request, Setpoint)
+from viena.services.steering.model.actions import (
+    Command,
+    Configure,
+    Connect,
+    Cycle,
+    DriveReading,
+    Reply,
+    SendTarget,
+    WriteLimits,
+)
+from viena.services.steering.model.arming import ArmSequence
+from viena.services.steering.model.calibration import (
+    Calibration,
+    CalibrationRefused,
+    CalibrationSettings,
+    SweepRecorder,
+)
+from viena.services.steering.model.requests import (
+    Arm,
+    BadSetpoint,
+    CalibrationRequest,
+    Disarm,
+    Estop,
+    Refused,
+    Request,
+    Setpoint,
+)
 from viena.services.steering.model.safety import ACCEPTED, REJECTED, Envelope
 from viena.services.steering.model.supervision import Backoff, DriveWatch
 
 log = logging.getLogger("viena.steering")
 
 
-class Phase(str, Enum):
+class Phase(StrEnum):
     CONNECTING = "connecting"      # opening the link, configuring the drive
     CALIBRATING = "calibrating"    # power stage off, recording the person's sweep
     CHECKING = "checking"          # writing the calibrated limits to the drive

@@ -20,8 +20,8 @@ target lies in the allowed range, and moves by at most slew * dt from the one be
 """
 from __future__ import annotations
 
-import hmac
 import hashlib
+import hmac
 import logging
 import math
 import secrets

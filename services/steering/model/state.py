@@ -46,7 +46,7 @@ def monitor_view(state: dict) -> dict[str, str]:
     return fields_view(state, MONITOR_FIRST)
 
 
-def sample(core: "SteeringCore", now: float, wall_ns: int, reading: "DriveReading", seq: int) -> dict:
+def sample(core: SteeringCore, now: float, wall_ns: int, reading: DriveReading, seq: int) -> dict:
     """The state as of `now` (`wall_ns` UTC), the `seq`-th sample."""
     fb = reading.feedback
     cal, env = core.calibration, core.envelope

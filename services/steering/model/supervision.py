@@ -6,8 +6,8 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-from viena.services.steering.model.actions import DriveReading
 from viena.services.steering.driver.epos import NMT_OPERATIONAL, DriveSettings
+from viena.services.steering.model.actions import DriveReading
 
 log = logging.getLogger("viena.steering")
 

@@ -20,8 +20,8 @@ import canopen
 
 from viena.common.errors import ConfigError
 from viena.common.twin.slcan_hub import SlcanHub
-from viena.services.steering.simulator.plant import CHIRP005, TRAJ01, PlantParams, PositionPlant
 from viena.services.steering.simulator.epos_twin import EposTwin, TwinSettings
+from viena.services.steering.simulator.plant import CHIRP005, TRAJ01, PlantParams, PositionPlant
 
 __all__ = ["EposDevice", "EposTwin", "PlantParams", "PositionPlant", "TwinSettings",
            "make_epos_device", "start_twin_on_hub"]

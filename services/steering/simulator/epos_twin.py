@@ -26,17 +26,22 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import canopen
 from canopen.sdo import SdoAbortedError
 
-from viena.services.steering.model.calibration import SLOPE_DEG_PER_QC
 from viena.services.steering.driver import ds402
-from viena.services.steering.driver.emcy import (ERROR_REGISTER, FOLLOWING_ERROR, LIFE_GUARD_ERROR,
-                                                 SOFTWARE_POSITION_LIMIT_ERROR, emcy_name)
+from viena.services.steering.driver.emcy import (
+    ERROR_REGISTER,
+    FOLLOWING_ERROR,
+    LIFE_GUARD_ERROR,
+    SOFTWARE_POSITION_LIMIT_ERROR,
+    emcy_name,
+)
 from viena.services.steering.driver.epos import EDS_PATH, POSITION_MODE
+from viena.services.steering.model.calibration import SLOPE_DEG_PER_QC
 from viena.services.steering.simulator.plant import TRAJ01, PlantParams, PositionPlant
 
 log = logging.getLogger(__name__)
@@ -93,7 +98,7 @@ class EposTwin:
         self.hands: Callable[[], float | None] | None = None
 
     # -- life -----------------------------------------------------------------------------
-    def start(self) -> "EposTwin":
+    def start(self) -> EposTwin:
         self.power_on()
         self._thread = threading.Thread(target=self._run, name="epos-twin", daemon=True)
         self._thread.start()
@@ -277,6 +282,14 @@ class EposTwin:
         return now - self._host_hb_last > timeout_ms / 1000.0
 
     # -- the person turning the wheel ------------------------------------------------------
+    def ask_for_sweep(self) -> bool:
+        """The person at the wheel is asked to turn it lock to lock again (the steering
+        service restarted its calibration and says so); False if a sweep is under way."""
+        if self._sweep is not None:
+            return False
+        self._swept = False
+        return True
+
     def _person(self, now: float, dt: float) -> None:
         s = self.settings
         if self._sweep is None and s.sweep and not self._swept and self._host_hb_seen_s is not None \

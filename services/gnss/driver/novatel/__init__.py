@@ -2,13 +2,40 @@
 the ASCII logs it is asked for: RXCONFIG)."""
 from .ascii import AsciiMessage, ConfigEntry, config_entry, message_of
 from .commands import (
-    COMMANDS, BodyError, Com, Command, CommandError, CommandTimeout, DynamicsCommand, Log,
-    Reset, Response, SaveConfig, SbasControl, Unlog, Unlogall, decode_command,
+    COMMANDS,
+    BodyError,
+    Com,
+    Command,
+    CommandError,
+    CommandTimeout,
+    DynamicsCommand,
+    Log,
+    Reset,
+    Response,
+    SaveConfig,
+    SbasControl,
+    Unlog,
+    Unlogall,
+    decode_command,
     sbas_keyword_value,
 )
 from .enums import (
-    ComPort, Datum, Dynamics, Handshake, MessageFormat, MessageId, Parity, Port, PositionType,
-    ResponseId, SbasKeyword, SbasSystem, SbasTestMode, SolutionStatus, TimeStatus, Trigger,
+    ComPort,
+    Datum,
+    Dynamics,
+    Handshake,
+    MessageFormat,
+    MessageId,
+    Parity,
+    Port,
+    PositionType,
+    ResponseId,
+    SbasKeyword,
+    SbasSystem,
+    SbasTestMode,
+    SolutionStatus,
+    TimeStatus,
+    Trigger,
 )
 from .framing import AsciiFrame, Frame, FrameDecoder, Header, crc32, encode_frame
 from .logs import LOGS, BestPos, BestVel, BestXyz, LogMessage, decode_log, encode_log

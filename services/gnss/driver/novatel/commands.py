@@ -11,8 +11,17 @@ from dataclasses import astuple, dataclass, fields, replace
 from typing import ClassVar
 
 from .enums import (
-    ComPort, Dynamics, Handshake, MessageId, Parity, Port, ResponseId, SbasKeyword,
-    SbasSystem, SbasTestMode, Trigger,
+    ComPort,
+    Dynamics,
+    Handshake,
+    MessageId,
+    Parity,
+    Port,
+    ResponseId,
+    SbasKeyword,
+    SbasSystem,
+    SbasTestMode,
+    Trigger,
 )
 from .framing import RESPONSE_BIT, Header, encode_frame
 
@@ -52,7 +61,7 @@ class Command:
         return self._BODY.pack(*astuple(self))
 
     @classmethod
-    def from_body(cls, body: bytes) -> "Command":
+    def from_body(cls, body: bytes) -> Command:
         if len(body) != cls._BODY.size:
             raise BodyError(f"{MessageId(cls.MESSAGE_ID).name} body is {len(body)} bytes, "
                             f"expected {cls._BODY.size}")
@@ -214,7 +223,7 @@ class Response:
         return self._ID.pack(self.response_id) + self.text.encode("ascii", "replace")
 
     @classmethod
-    def from_body(cls, body: bytes) -> "Response":
+    def from_body(cls, body: bytes) -> Response:
         if len(body) < 4:
             raise BodyError(f"response body is {len(body)} bytes, expected at least 4")
         text = body[4:].split(b"\0", 1)[0].decode("ascii", "replace").strip()

@@ -10,9 +10,10 @@ import struct
 from dataclasses import dataclass, replace
 from typing import ClassVar
 
-from ..gpstime import gps_to_utc_ns
-from .enums import Datum, MessageId, PositionType, SolutionStatus
+from viena.services.gnss.driver.gpstime import gps_to_utc_ns
+
 from .commands import BodyError
+from .enums import Datum, MessageId, PositionType, SolutionStatus
 from .framing import Frame, Header, encode_frame
 
 Vec3 = tuple[float, float, float]
@@ -60,7 +61,7 @@ class BestXyz:
             self.sats_l2_rtk, self.reserved)
 
     @classmethod
-    def from_body(cls, body: bytes) -> "BestXyz":
+    def from_body(cls, body: bytes) -> BestXyz:
         v = _unpack(cls, body)
         return cls(SolutionStatus(v[0]), PositionType(v[1]), v[2:5], v[5:8],
                    SolutionStatus(v[8]), PositionType(v[9]), v[10:13], v[13:16],
@@ -108,7 +109,7 @@ class BestPos:
             self.sats_l2_rtk, self.reserved)
 
     @classmethod
-    def from_body(cls, body: bytes) -> "BestPos":
+    def from_body(cls, body: bytes) -> BestPos:
         v = _unpack(cls, body)
         return cls(SolutionStatus(v[0]), PositionType(v[1]), *v[2:6], Datum(v[6]),
                    *v[7:10], _station(v[10]), *v[11:17], v[17])
@@ -137,7 +138,7 @@ class BestVel:
                                self.vert_speed_mps, self.reserved)
 
     @classmethod
-    def from_body(cls, body: bytes) -> "BestVel":
+    def from_body(cls, body: bytes) -> BestVel:
         v = _unpack(cls, body)
         return cls(SolutionStatus(v[0]), PositionType(v[1]), *v[2:])
 

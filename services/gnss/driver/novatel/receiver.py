@@ -23,8 +23,8 @@ import logging
 import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import serial
 
@@ -33,11 +33,30 @@ from viena.common.link_reader import LinkReader
 
 from .ascii import AsciiError, ConfigEntry, config_entry, message_of
 from .commands import (
-    BodyError, Com, Command, CommandError, CommandTimeout, DynamicsCommand, Log, Reset,
-    Response, SaveConfig, SbasControl, Unlog, Unlogall, sbas_keyword_value,
+    BodyError,
+    Com,
+    Command,
+    CommandError,
+    CommandTimeout,
+    DynamicsCommand,
+    Log,
+    Reset,
+    Response,
+    SaveConfig,
+    SbasControl,
+    Unlog,
+    Unlogall,
+    sbas_keyword_value,
 )
 from .enums import (
-    Dynamics, MessageFormat, MessageId, Port, SbasKeyword, SbasSystem, SbasTestMode, Trigger,
+    Dynamics,
+    MessageFormat,
+    MessageId,
+    Port,
+    SbasKeyword,
+    SbasSystem,
+    SbasTestMode,
+    Trigger,
 )
 from .framing import MAX_BODY_LENGTH, AsciiFrame, DecoderStats, Frame, FrameDecoder
 from .logs import LogMessage, decode_log
@@ -154,7 +173,7 @@ class NovatelReceiver:
         self._reader.stop()
         self._link.close()
 
-    def __enter__(self) -> "NovatelReceiver":
+    def __enter__(self) -> NovatelReceiver:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -1,0 +1,79 @@
+"""The same flags everywhere (issue 14): every command answers --version, every process and
+laptop tool takes the same connection flags, --unit exists only where units do, and one
+name means one thing (--baudrate, --config as TOML settings)."""
+from __future__ import annotations
+
+import argparse
+import io
+from contextlib import redirect_stdout
+
+import pytest
+
+from viena import cli
+from viena.common.service import build_parser as service_parser
+from viena.settings import services
+
+CONNECTION_FLAGS = ("--connect", "--car", "--config", "--identity", "--keys", "--log-level", "--version")
+CLIENT_TOOLS = ("sub", "record", "replay", "monitor", "list", "hz")
+
+
+def subcommands() -> dict[str, argparse.ArgumentParser]:
+    parser = cli.build_parser()
+    [action] = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return dict(action.choices)
+
+
+def version_of(parser: argparse.ArgumentParser) -> str:
+    out = io.StringIO()
+    with redirect_stdout(out), pytest.raises(SystemExit) as done:
+        parser.parse_args(["--version"])
+    assert done.value.code == 0
+    return out.getvalue()
+
+
+def test_every_command_answers_version():
+    commands = subcommands()
+    for name in ("up", "down", "status", "logs", "restart", "stop", "start", "doctor", "service",
+                 "list", "hz", "info", "sub", "monitor", "record", "replay", "keys", "router"):
+        assert name in commands, name
+    for name, parser in {"viena": cli.build_parser(), **commands}.items():
+        said = version_of(parser)
+        assert "0." in said and "eclipse-zenoh" in said and "Python" in said, (name, said)
+
+
+def test_every_service_and_client_tool_takes_the_connection_flags():
+    parsers = {f"viena-{name}": service_parser(cls) for name, cls in services().items()}
+    commands = subcommands()
+    parsers.update({f"viena {name}": commands[name] for name in CLIENT_TOOLS})
+    for name, parser in parsers.items():
+        for flag in CONNECTION_FLAGS:
+            assert flag in parser._option_string_actions, (name, flag)
+        assert "0." in version_of(parser)
+    for name in ("record", "replay", "monitor", "list", "hz", "sub"):
+        assert "--timeout" in commands[name]._option_string_actions, name
+
+
+def test_unit_only_where_a_service_has_units():
+    with_units = {name for name, cls in services().items()
+                  if "--unit" in service_parser(cls)._option_string_actions}
+    assert with_units == {"gnss", "imu"}
+
+
+def test_serial_devices_take_baudrate():
+    for name in ("gnss", "imu"):
+        assert "--baudrate" in service_parser(services()[name])._option_string_actions
+
+
+def test_router_config_is_toml_settings_and_the_zenoh_file_has_its_own_flag(tmp_path, capsys):
+    from viena import router
+
+    json5 = tmp_path / "router.json5"
+    json5.write_text("{}")
+    args = router.build_parser().parse_args(["--config", str(json5)])
+    assert router.run(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--zenoh-config" in err[0]
+    toml = tmp_path / "viena.toml"
+    toml.write_text('[zenoh]\nlisten = "tcp/127.0.0.1:7999"\nconfig = "router.json5"\n')
+    path, listen, connect = router.router_settings(router.build_parser().parse_args(["--config", str(toml)]))
+    assert path == json5 and listen == ["tcp/127.0.0.1:7999"] and connect is None

@@ -1,0 +1,132 @@
+"""One program at a time, and a `viena up -d` that tells the truth (issue 14): a program
+that stops at a bad setting is reported with its log, not called up; logs, restart,
+stop and start by name; an unknown name lists the known ones; a foreground `viena up`
+stops everything on SIGTERM, as systemd stops it."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+from pathlib import Path
+
+import pytest
+from vienatest import VIENA, sim_profile_up, viena, wait_for_line, wait_until
+
+from viena.paths import compose_dir
+
+pytestmark = pytest.mark.slow  # whole profiles under supervisord
+
+
+def status(env) -> dict[str, str]:
+    out = viena("status", "--profile", "sim", env=env).stdout
+    return {line.split()[0]: line.split()[1] for line in out.splitlines() if len(line.split()) > 1}
+
+
+def pid_of(env, name: str) -> int:
+    out = viena("status", "--profile", "sim", env=env).stdout
+    [line] = [line for line in out.splitlines() if line.startswith(name + " ")]
+    return int(line.split("pid ")[1].split(",")[0])
+
+
+@pytest.fixture(scope="module")
+def profile(tmp_path_factory):
+    with sim_profile_up(tmp_path_factory.mktemp("run")) as up:
+        yield up
+
+
+def test_up_detached_reports_a_program_that_stops_at_a_bad_setting(tmp_path):
+    compose = tmp_path / "compose"
+    shutil.copytree(compose_dir(), compose)
+    settings = compose / "sim.toml"
+    settings.write_text(settings.read_text().replace("[estimator]\n", "[estimator]\nmadgwick_beta = 'fast'\n", 1))
+    env = dict(os.environ, VIENA_RUN=str(tmp_path / "run"), VIENA_COMPOSE=str(compose))
+    env.pop("VIENA_ROUTER_PORT", None)
+    try:
+        up = viena("up", "-d", "--free-ports", env=env, timeout=120)
+        assert up.returncode == 1, up.stderr
+        assert "1 program(s) of profile sim not up:" in up.stderr
+        assert "estimator:" in up.stderr and "its log ends:" in up.stderr
+        assert "setting 'madgwick_beta' must be float, got 'fast'" in up.stderr
+        assert "every program" not in up.stderr
+        running = status(env)
+        assert running["router"] == "RUNNING" and running["estimator"] != "RUNNING"
+    finally:
+        viena("down", "--profile", "sim", env=env, timeout=60)
+
+
+def test_an_unknown_program_lists_the_known_ones(profile):
+    env, _ = profile
+    for action in ("logs", "restart", "stop", "start"):
+        run = viena(action, "simm", "--profile", "sim", env=env)
+        assert run.returncode == 1
+        assert run.stderr.strip() == ("viena: no program 'simm' in profile sim (have: estimator, gnss0, "
+                                      "gnss1, razor0, router, sim, steering)")
+    follow = viena("logs", "simm", "-f", env=env)
+    assert follow.returncode == 1 and "have: estimator" in follow.stderr
+
+
+def test_restart_stop_and_start_one_program(profile):
+    env, _ = profile
+    before = pid_of(env, "gnss1")
+    others = {name: pid_of(env, name) for name in ("gnss0", "sim", "router")}
+    done = viena("restart", "gnss1", env=env, timeout=90)
+    assert done.returncode == 0, done.stderr
+    assert "gnss1: running" in done.stdout
+    assert pid_of(env, "gnss1") != before
+    assert {name: pid_of(env, name) for name in others} == others      # the rest untouched
+
+    stopped = viena("stop", "gnss1", env=env, timeout=60)
+    assert stopped.returncode == 0 and status(env)["gnss1"] == "STOPPED"
+    started = viena("start", "gnss1", env=env, timeout=90)
+    assert started.returncode == 0, started.stderr
+    assert status(env)["gnss1"] == "RUNNING"
+
+
+def test_logs_follows_a_program(profile):
+    env, _ = profile
+    follow = subprocess.Popen([*VIENA, "logs", "gnss0", "-f"], env=env, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for_line(follow.stdout, "started: car elettra", timeout=20)     # what it said so far
+        assert viena("restart", "gnss0", env=env, timeout=90).returncode == 0
+        wait_for_line(follow.stdout, "stopped", timeout=30)                  # and what it says next
+        wait_for_line(follow.stdout, "started: car elettra", timeout=30)
+    finally:
+        follow.send_signal(signal.SIGINT)
+        follow.wait(timeout=10)
+
+
+def test_foreground_up_stops_everything_on_sigterm(clean_env):
+    """systemd stops the unit by SIGTERM to `viena up` alone (KillMode=mixed)."""
+    env = clean_env
+    proc = subprocess.Popen([*VIENA, "up", "--free-ports"], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    run = Path(env["VIENA_RUN"])
+    pids: list[int] = []
+    try:
+        def supervised() -> bool:
+            if not (run / "env.json").exists():
+                return False
+            out = viena("status", "--profile", "sim", env=env).stdout
+            pids[:] = [int(line.split("pid ")[1].split(",")[0]) for line in out.splitlines() if "pid " in line]
+            return len(pids) >= 7
+        assert wait_until(supervised, 60, period=0.2)
+        supervisord = int((run / "supervisord.pid").read_text())
+        proc.send_signal(signal.SIGTERM)                  # to viena up only, not its group
+        assert proc.wait(timeout=30) == 0
+        assert "stopping (SIGTERM)" in proc.stderr.read()
+
+        def gone(pid: int) -> bool:
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                return True
+            return Path(f"/proc/{pid}/stat").read_text().split()[2] == "Z"
+        assert wait_until(lambda: all(gone(p) for p in [*pids, supervisord]), 10)
+        assert json.loads((run / "env.json").read_text())["VIENA_PROFILE"] == "sim"
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
