@@ -14,7 +14,7 @@ class Keys:
         self.car = car
         self.prefix = f"{ROOT}/{car}"
 
-    def key(self, *parts: str) -> str:
+    def key(self, *parts: str | None) -> str:
         return "/".join([self.prefix, *(str(p) for p in parts if p)])
 
     def health(self, service: str, unit: str | None = None) -> str:

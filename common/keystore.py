@@ -24,6 +24,7 @@ import os
 import re
 import socket
 import stat
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -95,7 +96,7 @@ class KeyStore:
         return self.ca_cert.exists()
 
     # -- creating -------------------------------------------------------------------------
-    def init(self, router_hosts: list[str] = (), force: bool = False) -> list[Identity]:
+    def init(self, router_hosts: Sequence[str] = (), force: bool = False) -> list[Identity]:
         """A new CA, the router's certificate and the standard identities."""
         if self.exists() and not force:
             raise SecurityError(f"{self.ca_cert}: a CA already exists for car '{self.car}' "
@@ -118,7 +119,7 @@ class KeyStore:
         return made
 
     def issue(self, role: str, name: str, days: int | None = None, force: bool = False,
-              router_hosts: list[str] = (), valid_from: dt.datetime | None = None) -> Identity:
+              router_hosts: Sequence[str] = (), valid_from: dt.datetime | None = None) -> Identity:
         """A certificate and key for `name` in `role`, signed by the car's CA.
 
         `valid_from` exists for tests that need a certificate that has already expired."""
@@ -280,7 +281,7 @@ def _builder(subject, issuer, public_key, days: int, valid_from: dt.datetime | N
             .not_valid_before(start).not_valid_after(start + dt.timedelta(days=days)))
 
 
-def _alt_names(hosts: list[str]) -> list:
+def _alt_names(hosts: Sequence[str]) -> list:
     """The router's names: localhost, this machine's name, and every address given."""
     x509 = _x509()
     names = ["localhost", "127.0.0.1", "::1", socket.gethostname(), f"{socket.gethostname()}.local",

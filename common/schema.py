@@ -13,6 +13,7 @@ A consumer that reads only a few fields, of samples from any source, uses a `Rea
 """
 from __future__ import annotations
 
+import builtins
 import math
 from collections.abc import Callable
 from typing import Any
@@ -50,11 +51,11 @@ def _finite_float(v) -> float:
     raise Invalid("expected a finite number", v)
 
 
-def _fast(expr: str):
+def _fast(expr: str) -> Callable[[Check], Check]:
     """Attach an inline test for `v` that passes exactly the values a check keeps unchanged;
     schemas compile these into one function for the common case (see _Fields)."""
-    def mark(fn):
-        fn.fast = expr
+    def mark(fn: Check) -> Check:
+        fn.fast = expr  # type: ignore[attr-defined]
         return fn
     return mark
 
@@ -108,7 +109,7 @@ class F:
         raise Invalid("expected a map with text keys", v)
 
     @staticmethod
-    def vec(n: int) -> Check:
+    def vec(n: builtins.int) -> Check:
         """A list of exactly n finite numbers."""
         def check(v):
             if type(v) is list and len(v) == n:
@@ -121,8 +122,7 @@ class F:
                 return [_finite_float(x) for x in v]
             raise Invalid(f"expected a list of {n} finite numbers", v)
         items = " and ".join(f"type(v[{i}]) is float and v[{i}] - v[{i}] == 0.0" for i in range(n))
-        check.fast = f"type(v) is list and len(v) == {n}" + (f" and {items}" if n <= 6 else " and False")
-        return check
+        return _fast(f"type(v) is list and len(v) == {n}" + (f" and {items}" if n <= 6 else " and False"))(check)
 
     @staticmethod
     def list(item: Check) -> Check:
@@ -133,7 +133,7 @@ class F:
         return check
 
     @staticmethod
-    def enum(*names: str) -> Check:
+    def enum(*names: builtins.str) -> Check:
         allowed = frozenset(names)
 
         def check(v):
@@ -147,13 +147,13 @@ class F:
         """May be missing or nil."""
         def check(v):
             return None if v is None else inner(v)
-        check.optional = True
+        check.optional = True  # type: ignore[attr-defined]
         if hasattr(inner, "fast"):
-            check.fast = f"v is None or ({inner.fast})"
+            return _fast(f"v is None or ({inner.fast})")(check)
         return check
 
     @staticmethod
-    def struct(fields: dict[str, Check]) -> Check:
+    def struct(fields: dict[builtins.str, Check]) -> Check:
         """A nested map with its own fields."""
         inner = _Fields(fields)
 

@@ -95,7 +95,7 @@ class Service:
         self.zenoh_config = zenoh_config(args, toml, identity=self.unit or self.name)
         self.health = Health(self.name, self.unit)
         self.stopping = threading.Event()
-        self.session = None
+        self.session: Any = None           # the zenoh.Session, once run() has opened it
         self._declared: list = []
         self._token = None
 

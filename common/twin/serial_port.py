@@ -99,7 +99,7 @@ class SerialEndpoint:
                     sel.register(client, selectors.EVENT_READ)
                     self.twin.on_connect(time.monotonic())
                     log.info("%s: host connected", self.name)
-                else:
+                elif client is not None:
                     data = self._recv(client)
                     if data is None:
                         sel.unregister(client)

@@ -169,7 +169,7 @@ class NmeaDecoder:
         except (pynmea2.ParseError, UnicodeDecodeError, ValueError, TypeError):
             stats.parse_errors += 1
             return []
-        kind = getattr(msg, "sentence_type", None)
+        kind: str = getattr(msg, "sentence_type", "")
         handler = _HANDLERS.get(kind)
         if handler is None:
             stats.ignored_sentences += 1

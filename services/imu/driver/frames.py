@@ -128,7 +128,7 @@ class FrameDecoder:
 
     def __init__(self, text_lines_kept: int = 20):
         self.stats = DecoderStats()
-        self.text = deque(maxlen=text_lines_kept)   # recent lines of text from the board
+        self.text: deque[str] = deque(maxlen=text_lines_kept)   # recent lines of text from the board
         self._buf = bytearray()
         self._base = 0             # stream offset of self._buf[0]
         self._lost = False         # bytes were lost since the last good frame

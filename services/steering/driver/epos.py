@@ -127,25 +127,37 @@ class EposDrive:
         self.tx_frames = 0
 
     # -- connection ---------------------------------------------------------------------
+    @property
+    def _net(self) -> canopen.Network:
+        """The open network: using the drive before open() (or after close()) is a bug."""
+        if self.network is None:
+            raise RuntimeError("EPOS drive not open")
+        return self.network
+
+    @property
+    def _node(self) -> BaseNode402:
+        if self.node is None:
+            raise RuntimeError("EPOS drive not open")
+        return self.node
+
     def open(self) -> None:
         s = self.settings
         with self._fb_lock:
             self._feedback = Feedback()
         self._heartbeat_s = self._heartbeat_state = None
-        self.network = canopen.Network(self._bus)
-        self.network.NOTIFIER_CYCLE = 0.1      # how long closing waits for the receive thread
+        net = self.network = canopen.Network(self._bus)
+        net.NOTIFIER_CYCLE = 0.1      # how long closing waits for the receive thread
         if self._bus is None:
-            self.network.connect(interface=s.interface, channel=s.channel, bitrate=s.bitrate,
-                                 **s.bus_options)
+            net.connect(interface=s.interface, channel=s.channel, bitrate=s.bitrate, **s.bus_options)
         else:
-            self.network.connect()
-        self.network.notifier.add_listener(_ReceiveFailure(self.network))
+            net.connect()
+        _notifier(net).add_listener(_ReceiveFailure(net))
         od = canopen.import_od(s.eds, s.node_id)
-        self.node = BaseNode402(s.node_id, od)
-        self.network.add_node(self.node)
-        self.node.sdo.RESPONSE_TIMEOUT = s.sdo_timeout_s
-        self.node.nmt.add_heartbeat_callback(self._on_heartbeat)
-        self.node.emcy.add_callback(self._on_emcy)
+        node = self.node = BaseNode402(s.node_id, od)
+        net.add_node(node)
+        node.sdo.RESPONSE_TIMEOUT = s.sdo_timeout_s
+        node.nmt.add_heartbeat_callback(self._on_heartbeat)
+        node.emcy.add_callback(self._on_emcy)
         self._map_process_data()
         log.info("EPOS node %d on %s %s", s.node_id, s.interface, s.channel)
 
@@ -170,7 +182,7 @@ class EposDrive:
 
         Leaves the drive with its power stage off (switch on disabled), in Position Mode.
         """
-        s, node = self.settings, self.node
+        s, node = self.settings, self._node
         node.nmt.state = "PRE-OPERATIONAL"
         with self._tx_lock:
             self._controlword = ds402.CW_DISABLE_VOLTAGE
@@ -204,8 +216,8 @@ class EposDrive:
 
     def write(self, index: int, subindex: int, value: int, verify: bool = True) -> None:
         """SDO download, read back to be sure the drive kept it."""
-        var = self.node.sdo[index] if subindex == 0 and not _has_subs(self.node, index) \
-            else self.node.sdo[index][subindex]
+        var = self._node.sdo[index] if subindex == 0 and not _has_subs(self._node, index) \
+            else self._node.sdo[index][subindex]
         try:
             var.raw = value
             if verify and var.raw != value:
@@ -216,8 +228,8 @@ class EposDrive:
             raise DriveError(f"0x{index:04X}:{subindex}: no answer ({exc})") from None
 
     def read(self, index: int, subindex: int = 0) -> int:
-        var = self.node.sdo[index] if subindex == 0 and not _has_subs(self.node, index) \
-            else self.node.sdo[index][subindex]
+        var = self._node.sdo[index] if subindex == 0 and not _has_subs(self._node, index) \
+            else self._node.sdo[index][subindex]
         try:
             return var.raw
         except (canopen.SdoAbortedError, canopen.SdoCommunicationError) as exc:
@@ -231,7 +243,7 @@ class EposDrive:
 
     def _map_process_data(self) -> None:
         """The PDO layout this driver uses, built locally (saved to the drive by configure)."""
-        node, nid = self.node, self.settings.node_id
+        node, nid = self._node, self.settings.node_id
         layout = (
             (node.rpdo, 1, 0x200, 255, (0x6040, 0x2062)),
             (node.tpdo, 1, 0x180, 1, (0x6041, 0x6064)),
@@ -256,7 +268,7 @@ class EposDrive:
         node.tpdo[2].add_callback(self._on_tpdo)
 
     def _save_process_data(self) -> None:
-        node = self.node
+        node = self._node
         try:
             for pdos in (node.rpdo, node.tpdo):
                 for n in range(1, 5):
@@ -268,8 +280,8 @@ class EposDrive:
         node.setup_pdos(upload=False)          # BaseNode402 follows the statusword by TPDO
         # Our RPDO's contents are ours alone: never let a frame from another host on the
         # bus with the same COB-ID overwrite them (canopen subscribes RPDOs on save()).
-        if self._rpdo.on_message in self.network.subscribers.get(self._rpdo.cob_id, []):
-            self.network.unsubscribe(self._rpdo.cob_id, self._rpdo.on_message)
+        if self._rpdo.on_message in self._net.subscribers.get(self._rpdo.cob_id, []):
+            self._net.unsubscribe(self._rpdo.cob_id, self._rpdo.on_message)
 
     # -- process data ---------------------------------------------------------------------
     def cycle(self, target_qc: int | None = None) -> None:
@@ -280,11 +292,11 @@ class EposDrive:
             if target_qc is not None:
                 self._target_qc = int(target_qc)
             if now >= self._next_heartbeat:
-                self.network.send_message(0x700 + self.settings.host_node_id, bytes([NMT_OPERATIONAL]))
+                self._net.send_message(0x700 + self.settings.host_node_id, bytes([NMT_OPERATIONAL]))
                 self._next_heartbeat = now + self.settings.host_heartbeat_period_s
                 self.tx_frames += 1
             self._send_rpdo()
-            self.network.sync.transmit()
+            self._net.sync.transmit()
             self.tx_frames += 1
 
     def command(self, controlword: int) -> None:
@@ -345,7 +357,7 @@ class EposDrive:
         now = self._clock()
         with self._fb_lock:
             fb = self._feedback
-            if pdo.cob_id == self.node.tpdo[1].cob_id:
+            if pdo.cob_id == self._node.tpdo[1].cob_id:
                 fb = Feedback(pdo[0x6041].raw, pdo[0x6064].raw, fb.following_error_qc,
                               fb.demand_qc, fb.op_mode, now, fb.count + 1)
             else:
@@ -383,7 +395,14 @@ class _ReceiveFailure(can.Listener):
 
     def on_error(self, exc: Exception) -> None:
         log.warning("CAN receive stopped: %s", exc)
-        self._network.notifier.stop(timeout=0)
+        _notifier(self._network).stop(timeout=0)
+
+
+def _notifier(network: canopen.Network) -> can.Notifier:
+    """The receive thread of a connected network (connect() starts it)."""
+    if network.notifier is None:
+        raise RuntimeError("CAN network not connected")
+    return network.notifier
 
 
 def _has_subs(node, index: int) -> bool:

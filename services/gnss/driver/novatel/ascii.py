@@ -60,7 +60,9 @@ class AsciiMessage:
 
 def split_fields(data: str) -> tuple[str, ...]:
     """Comma-separated fields; a string in double quotes is one field (§1.1.1 rule 5)."""
-    fields, field, quoted = [], [], False
+    fields: list[str] = []
+    field: list[str] = []
+    quoted = False
     for c in data:
         if c == '"':
             quoted = not quoted

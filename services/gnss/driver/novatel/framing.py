@@ -113,7 +113,7 @@ class AsciiFrame:
 def unpack_header(buf, offset: int = 0) -> Header:
     """The header at ``offset`` (its sync is not checked here)."""
     fields = _HEADER.unpack_from(buf, offset)
-    return Header(*fields[2:], header_length=fields[1])
+    return Header(*fields[2:], header_length=fields[1])  # type: ignore[misc]  # fields[2:] stop before it
 
 
 def encode_frame(header: Header, body: bytes = b"") -> bytes:
@@ -219,7 +219,7 @@ class FrameDecoder:
     def _ascii_end(self, buf: bytearray, pos: int, n: int) -> int:
         """End (after CR LF) of the ASCII message whose '#' is at pos, or why there is none:
         a byte that is not printable before the line ends means it is not one."""
-        text_end = _PRINTABLE.match(buf, pos + 1).end()
+        text_end = _PRINTABLE.match(buf, pos + 1).end()  # type: ignore[union-attr]  # `*` always matches
         if text_end - pos > MAX_ASCII_LENGTH:
             return _BAD_LENGTH
         if text_end == n or (buf[text_end] == 0x0D and text_end + 1 == n):
