@@ -1,6 +1,6 @@
 """The local ENU frame at an origin: ECEF in, ENU and geodetic out (pymap3d, WGS84).
 
-Seed eq. 5.2 is the rotation used here (with its first row read as [-sin lon, cos lon, 0]);
+The ECEF -> ENU rotation (docs/frames.md#ecef-to-enu) is the one used here;
 the tests check pymap3d against it, and we use the library rather than the equation.
 Shared by the simulated car's truth, the GNSS fixes and the estimator: pymap3d's exact
 ECEF -> geodetic costs ~0.2 ms a call, too much for every sample on a Pi, so geodetic
@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pymap3d
 
-#: WGS84 (seed table 5.1)
+#: WGS84 (docs/frames.md#wgs84-and-geodesy)
 WGS84_A_M = 6378137.0
 WGS84_B_M = 6356752.314245
 
@@ -51,7 +51,7 @@ class LocalFrame:
         return cls(float(lat), float(lon), float(h))
 
     def enu_of_ecef(self, ecef_m) -> tuple[float, float, float]:
-        """ENU is the rotation of the difference to the origin (eq. 5.2), so a matrix
+        """ENU is the rotation of the difference to the origin (docs/frames.md#ecef-to-enu), so a matrix
         product does what pymap3d.ecef2enu does, in a twentieth of the time."""
         x0, y0, z0 = self._origin_ecef
         dx, dy, dz = ecef_m[0] - x0, ecef_m[1] - y0, ecef_m[2] - z0

@@ -1,4 +1,4 @@
-"""Key expressions: everything the car says lives under viena/<car>/ (design §3)."""
+"""Key expressions: everything the car says lives under viena/<car>/ (docs/dataflow.md#key-expressions)."""
 from __future__ import annotations
 
 DEFAULT_CAR = "elettra"

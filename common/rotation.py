@@ -1,4 +1,4 @@
-"""Rotations as the whole project writes them (design §5, seed eq. 5.3/5.4).
+"""Rotations as the whole project writes them (docs/frames.md#rotation-matrices-and-euler-angles).
 
 Euler angles are Tait-Bryan intrinsic Z-Y-X (yaw psi, pitch theta, roll phi):
 R = Rz(psi) Ry(theta) Rx(phi) rotates body vectors into the world (ENU).
@@ -42,7 +42,7 @@ def euler_from_quat(q) -> tuple[float, float, float]:
 
 
 def euler_to_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
-    """Seed eq. 5.4: R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    """R = Rz(yaw) Ry(pitch) Rx(roll), body to ENU (docs/frames.md#rotation-matrices-and-euler-angles)."""
     cy, sy = math.cos(yaw), math.sin(yaw)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cr, sr = math.cos(roll), math.sin(roll)

@@ -1,4 +1,4 @@
-"""Sample schemas and their msgpack codec (design §4).
+"""Sample schemas and their msgpack codec (docs/dataflow.md#samples).
 
 A `Schema` names a sample type (`viena.sim.truth/1`) and lists its fields. `encode` checks
 a sample before it goes out, so a bad value is never published; `decode` checks what comes

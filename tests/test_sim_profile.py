@@ -94,7 +94,7 @@ def test_gnss_fixes_within_noise_of_truth(car):
         assert error < 4 * np.linalg.norm(fix["ecef_sigma_m"]), fix
         errors.append(error)
     assert len(errors) > 40
-    assert np.median(errors) < 3.0          # seed table 5.2: about 1.8 m CEP
+    assert np.median(errors) < 3.0          # about 1.8 m CEP (docs/sensors.md#gnss-error-budget)
 
 
 def test_imu_samples_agree_with_truth(car):

@@ -1,4 +1,4 @@
-"""GNSS receivers: NovAtel OEM4 binary and NMEA (design §2's three rooms).
+"""GNSS receivers: NovAtel OEM4 binary and NMEA, in the three rooms of docs/dataflow.md#rooms.
 
 - ``driver``: the wire protocols, bytes in, typed values out (no zenoh, no msgpack);
 - ``fix``: the viena.gnss.fix/1 sample and how each receiver's logs become one;

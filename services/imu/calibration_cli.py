@@ -1,7 +1,7 @@
 """`viena calibrate imu`: fit a unit's calibration from recorded or live frames, show it,
 store it in the unit's table of the calibration TOML file that viena-imu loads.
 
-    viena calibrate imu accel six_poses.csv --unit razor0     # six-position (seed 5.5.1.2)
+    viena calibrate imu accel six_poses.csv --unit razor0     # six-position (docs/sensors.md)
     viena calibrate imu gyro --port /dev/ttyUSB0 --seconds 20 # still period, from the device
     viena calibrate imu mag --live --seconds 120              # circles, from the running service
     viena calibrate imu time drive.mcap --lever-arm -0.5 1 1.5 # clock against GNSS, from a drive
@@ -35,7 +35,7 @@ from viena.services.imu.recordings import Recording, from_readings, load_recordi
 
 DEFAULT_SECONDS = {"accel": 90.0, "gyro": 20.0, "mag": 120.0, "record": 60.0}
 NOMINAL_RATE_HZ = 82.5
-LISBON_INCLINATION_DEG = 52.77          # design §5
+LISBON_INCLINATION_DEG = 52.77          # docs/frames.md#magnetic-field-in-lisbon
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -72,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     m = sub.add_parser("mag", parents=[common, source, fit],
                        help="magnetometer hard and soft iron from turning in circles")
     m.add_argument("--method", choices=("auto", "ellipse-2d", "ellipsoid-3d"), default="auto",
-                   help="auto: the 3-D ellipsoid when the data span 3-D, else the seed's 2-D ellipse")
+                   help="auto: the 3-D ellipsoid when the data span 3-D, else the 2-D ellipse")
     for name, what in (("mount", "the board-to-body rotation, from a recorded drive with GNSS"),
                        ("time", "the offset of the unit's timestamps, from a recorded drive with GNSS")):
         drive_calibration.add_arguments(sub.add_parser(name, parents=[common, fit], help=what,

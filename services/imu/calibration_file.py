@@ -29,16 +29,22 @@ def load_file(path: str | Path) -> dict:
         raise ConfigError(f"{path}: {exc}") from None
 
 
+#: where the log sends a reader for "the seed's values" (the default calibration)
+_DEFAULT_DOC = "the default calibration, docs/sensors.md#default-calibration"
+
+
 def load_calibration(path: str | Path | None, unit: str, firmware: str = "viena") -> tuple[ImuCalibration, str]:
     """The unit's calibration and one line saying where it came from (for the log).
-    A missing file or unit gives the seed's values; a broken one is a ConfigError."""
+    A missing file or unit gives the default calibration (docs/sensors.md#default-calibration; the
+    log calls it "the seed's values"); a broken one is a ConfigError."""
     if path is None:
-        return seed_calibration(firmware), f"{unit}: no calibration file given: using the seed's values"
+        how = f"{unit}: no calibration file given: using the seed's values ({_DEFAULT_DOC})"
+        return seed_calibration(firmware), how
     path = Path(path)
     tables = load_file(path)
     if unit not in tables:
         why = "no such file" if not path.exists() else f"no [{unit}] table"
-        return seed_calibration(firmware), f"{unit}: {path}: {why}: using the seed's values (tables 5.3, 5.4)"
+        return seed_calibration(firmware), f"{unit}: {path}: {why}: using the seed's values ({_DEFAULT_DOC})"
     cal = from_table(tables[unit], f"{path} [{unit}]", str(path))
     if cal.firmware != firmware:
         raise ConfigError(f"{path} [{unit}]: calibrated for firmware {cal.firmware!r}, "
@@ -63,10 +69,11 @@ def save_calibration(path: str | Path, unit: str, cal: ImuCalibration) -> ImuCal
 
 HEADER = """\
 # viena IMU calibration: one table per unit, written by `viena calibrate imu`.
-# accel (seed 5.5.1.2), per axis x y z: LSB = gain * a[g] + offset; the firmware sends
+# accel (six-position fit, viena docs/sensors.md#accelerometer-six-position-fit), per axis x y z:
+#   LSB = gain * a[g] + offset; the firmware sends
 #   (LSB - eeprom_offset) / eeprom_gain, which the host undoes first.
 # gyro: rate = frame - bias_dps.
-# mag (seed eq. 5.16): H_c = c_inv (H_s - offset); tesla = tesla_per_unit * H_c.
+# mag (viena docs/sensors.md#imu-calibration): H_c = c_inv (H_s - offset); tesla = tesla_per_unit * H_c.
 """
 
 

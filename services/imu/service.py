@@ -74,7 +74,8 @@ class ImuSettings:
                                      "or razor-ahrs (stock)", choices=FIRMWARES)
     baudrate: int = setting(0, "the board's baud rate; 0: the firmware's own (500000 or 57600)")
     calibration: str = setting(str(DEFAULT_FILE), "calibration TOML with a table per unit; a "
-                               "missing file or unit means the seed's values (\"\": none)",
+                               "missing file or unit means the default calibration, "
+                               "docs/sensors.md#default-calibration (\"\": none)",
                                metavar="FILE", shown="$VIENA_CONFIG_DIR/imu_calibration.toml, "
                                "else ~/.config/viena/imu_calibration.toml")
     ahrs_output: str = setting("binary", "razor-ahrs only: binary (#oscb) or text (#osct) frames",

@@ -1,4 +1,4 @@
-"""`viena-steering`: the steering wheel on zenoh (design §8; README.md in this folder).
+"""`viena-steering`: the steering wheel on zenoh (docs/steering.md; README.md in this folder).
 
     viena/<car>/steering/arm          query  {"arm": true} -> {"status", "lease", ...}
                                              {"arm": false, "lease": L}

@@ -1,5 +1,6 @@
-"""OEM4 binary protocol: the manual's worked examples, round trips of every command and
-log, enums by name, and the body sizes the old library got wrong."""
+"""OEM4 binary protocol: the manual's worked examples (OEM4 vol. 2, docs/README.md#sources;
+docs/sensors.md#crc-32), round trips of every command and log, enums by name, and the body
+sizes the old library got wrong."""
 from __future__ import annotations
 
 import struct

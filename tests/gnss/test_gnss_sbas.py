@@ -2,7 +2,7 @@
 setting (the OEM4 2.310 manual's table reads ENABLE 0, later firmware ENABLE 1), the
 start-up ends by asking for RXCONFIG in ASCII, whose SBASCONTROL names the keyword, and the
 service says in its health whether that is what it asked for. The twin reads the keyword
-either way and answers RXCONFIG as the manual's examples show."""
+either way and answers RXCONFIG as the manual's examples show (docs/sensors.md#sbas)."""
 from __future__ import annotations
 
 import struct

@@ -1,5 +1,5 @@
 """Two antennas, one sky (issue 12): the GNSS twins on one car draw the satellite clock,
-orbit and atmosphere errors (seed table 5.2's first four rows) from one source, and only
+orbit and atmosphere errors (the error budget's first four rows, docs/sensors.md#two-antennas-one-sky) from one source, and only
 multipath and receiver noise apart, so two receivers' errors are nearly the same error."""
 from __future__ import annotations
 

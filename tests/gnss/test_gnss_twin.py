@@ -1,6 +1,6 @@
 """The NovAtel and NMEA twins, driven by hand on a synthetic clock: responses in the
-receiver's format, logs at their triggers, seed-sized time-correlated noise, outages,
-lever arms."""
+receiver's format, logs at their triggers, time-correlated noise of the error budget's size
+(docs/sensors.md#gnss-error-budget), outages, lever arms."""
 from __future__ import annotations
 
 import struct

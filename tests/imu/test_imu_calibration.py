@@ -1,5 +1,6 @@
-"""Calibration: the seed's table 5.4 reproduced, known distortions recovered from twin data,
-fits that cannot be made refused, and the TOML file the service loads."""
+"""Calibration: the default magnetometer calibration (docs/sensors.md#default-calibration)
+reproduced, known distortions recovered from twin data, fits that cannot be made refused, and the
+TOML file the service loads. "Seed" and "table 5.x" in names: docs/README.md#glossary."""
 from __future__ import annotations
 
 import math
@@ -22,10 +23,10 @@ from viena.services.imu.recordings import save_recording
 from viena.services.imu.simulator import RazorBoard, RazorTwin
 from viena.services.imu.simulator.scenarios import record_twin, six_poses, still, tumbling, turning
 
-# seed table 5.4 as printed
+# the default magnetometer calibration as the guide prints it (docs/sensors.md#default-calibration)
 TABLE_R_CAL = [[-0.3011, -0.9536, 0], [0.9536, -0.3011, 0], [0, 0, 1]]
 TABLE_C_INV = [[0.9961, 0.0124, 0], [0.0124, 0.9606, 0], [0, 0, 1]]
-# a board unlike the seed's, so recovering it means something
+# a board unlike the default one, so recovering it means something
 ODD_BOARD = dict(accel_gain_lsb_per_g=(250.0, 262.0, 245.0), accel_offset_lsb=(-8.0, 5.0, 20.0),
                  eeprom_gain_lsb_per_g=(256.0,) * 3, eeprom_offset_lsb=(0.0,) * 3,
                  gyro_bias_dps=(0.3, -0.2, 0.1))
@@ -36,7 +37,7 @@ def twin(seed: int, **board) -> RazorTwin:
     return RazorTwin(None, RazorBoard(**board), boot_s=0.1, seed=seed)
 
 
-# -- the seed's figures -------------------------------------------------------------------------
+# -- the default calibration's figures (docs/sensors.md#default-calibration) ---------------------
 def test_seed_c_inv_and_r_cal_are_table_5_4():
     alpha = math.radians(107.5238)
     assert np.allclose(fitting.rotation_z(alpha), TABLE_R_CAL, atol=6e-5)
@@ -45,12 +46,12 @@ def test_seed_c_inv_and_r_cal_are_table_5_4():
     assert np.allclose(seed.mag_c_inv, TABLE_C_INV, atol=6e-5)
     offset_nT = np.array(seed.mag_offset) * HMC5843_TESLA_PER_COUNT * 1e9
     assert np.allclose(offset_nT, [-25828, -21703, 0])
-    assert seed.accel_gain_lsb_per_g == (266.04, 266.27, 253.66)          # table 5.3, x y z
+    assert seed.accel_gain_lsb_per_g == (266.04, 266.27, 253.66)          # default accel gain, x y z
     assert seed.accel_offset_lsb == (13.83, -3.18, -3.47)
 
 
 def test_the_2d_method_reproduces_table_5_4_from_data_built_with_it():
-    """Field points of a car turning in Lisbon, distorted by table 5.4's offset, alpha and
+    """Field points of a car turning in Lisbon, distorted by the default calibration's offset, alpha and
     axis ratio; the fit gives back those and the printed R_cal and C^-1."""
     c = np.linalg.inv(fitting.ellipse_c_inv(math.radians(107.5238), 0.9567))
     heading = np.linspace(0, 2 * np.pi, 400, endpoint=False)

@@ -1,6 +1,6 @@
 """The real parked-car recordings (traction motor without current, at 0, 10 and 20 Hz):
-what the seed's calibration makes of them, their magnetometer glitches, and their replay
-through the twin as firmware frames."""
+what the default calibration (docs/sensors.md#default-calibration) makes of them, their
+magnetometer glitches, and their replay through the twin as firmware frames."""
 from __future__ import annotations
 
 import numpy as np

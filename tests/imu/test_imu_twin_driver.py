@@ -31,7 +31,7 @@ def test_twin_boots_then_streams_what_the_car_feels():
     assert stats.crc_errors == stats.bytes_skipped == stats.resyncs == 0
     assert [r.seq for r in readings] == list(range(60))
     assert all(b.t_ns > a.t_ns for a, b in zip(readings, readings[1:]))
-    cal = SampleCalibrator(seed_calibration())        # the twin's board is the seed's
+    cal = SampleCalibrator(seed_calibration())        # the twin's board is the default one
     frames = [r.frame for r in readings]
     accel = cal.accel_array([f.accel_g for f in frames]).mean(axis=0)
     gyro = cal.gyro_array([f.gyro_dps for f in frames]).mean(axis=0)

@@ -2,7 +2,8 @@
 
 GPS time started at 1980-01-06 00:00:00 UTC and does not stop for leap seconds, so
 UTC = GPS - (GPS-UTC offset at that instant). The receiver stamps every log with GPS
-time (OEM4 manual §1.4); the samples carry UTC (design §4), so the conversion lives here.
+time (docs/sensors.md#gps-time-to-utc); the samples carry UTC (docs/dataflow.md#time), so the conversion
+lives here.
 All instants are integer nanoseconds on the POSIX (leap-second-free) UTC scale.
 """
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""NMEA 0183 GNSS receivers (the u-blox NEO-M8N of the Titans car, a ZED-F9P, SiRF...): GGA,
-RMC, VTG, GSA (and GSV for the satellites in view), checksums verified by pynmea2.
+"""NMEA 0183 GNSS receivers (a u-blox NEO-M8N or ZED-F9P, SiRF...): GGA, RMC, VTG, GSA (and
+GSV for the satellites in view), checksums verified by pynmea2 (docs/sensors.md#nmea-receivers).
 
 Sentences are grouped into epochs by their UTC time. An epoch is handed on as soon as it
 holds every sentence (talker and type) the previous epoch held, so there is no wait for the

@@ -1,6 +1,6 @@
 """The GNSS fix sample, viena.gnss.fix/1, and how each receiver's logs become one.
 
-This module owns the schema (design §4: one module per schema). A fix carries the
+This module owns the schema (one module per schema: docs/dataflow.md#schemas). A fix carries the
 receiver's solution as it was sent (float64 ECEF, statuses by name) plus its times:
 ``t`` is the epoch's GPS time in UTC, ``t_host`` the host clock when the frame's last byte
 arrived, ``latency_s`` their difference.

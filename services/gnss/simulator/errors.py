@@ -1,13 +1,13 @@
 """What makes a simulated GNSS fix wrong, and when the receiver has no fix at all.
 
-Position error: the sum of the error sources of seed table 5.2, each a first-order
+Position error: the sum of the error sources of docs/sensors.md#gnss-error-budget, each a first-order
 Gauss-Markov process (time-correlated, as real GNSS errors are: the ionosphere and the
 orbits drift over tens of minutes, multipath over seconds, and even the receiver's noise
 is smoothed over about a second: the car's 2016 fixes moved by centimetres, not decimetres,
 from one epoch to the next). The
 table's "up to" figures set the sources' relative sizes; the total is scaled so the
 horizontal error has the receiver's circular error probable (1.8 m CEP for the OEM4-G2L
-in single point, seed §5.4). For a circular Gaussian, CEP = 1.1774 sigma per axis.
+in single point, the car's own figure). For a circular Gaussian, CEP = 1.1774 sigma per axis.
 
 One sky over two antennas: the satellite clocks, the orbits and the atmosphere are the
 same for every receiver on the car (a metre apart, tracking the same satellites), so two
@@ -34,12 +34,13 @@ CEP_PER_SIGMA = math.sqrt(2.0 * math.log(2.0))     # 1.1774
 @dataclass(frozen=True)
 class ErrorSource:
     name: str
-    up_to_m: float          # seed table 5.2
+    up_to_m: float          # the error budget's "up to" figure (docs/sensors.md#gnss-error-budget)
     tau_s: float            # correlation time; 0 = white
     common: bool            # the same for every receiver on the car (the signal's path)
 
 
-#: Seed table 5.2 with correlation times typical of each source.
+#: The GNSS error budget (docs/sensors.md#gnss-error-budget) with correlation times typical of each
+#: source. (The name keeps the guide's table number: see docs/README.md#glossary.)
 SEED_TABLE_5_2 = (
     ErrorSource("satellite_clocks", 2.0, 1800.0, common=True),
     ErrorSource("orbit", 2.5, 3600.0, common=True),

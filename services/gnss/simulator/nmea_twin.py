@@ -1,4 +1,4 @@
-"""An NMEA receiver's twin (the u-blox NEO-M8N of the Titans car): 10 Hz epochs of
+"""An NMEA receiver's twin (a u-blox NEO-M8N, docs/sensors.md#nmea-receivers): 10 Hz epochs of
 RMC, VTG, GGA, GSA, GSV and GLL, in u-blox's order, written with pynmea2.
 
 Positions come from the simulated car's truth at the antenna's lever arm plus the same

@@ -21,7 +21,8 @@ Commands are binary only: ASCII input is ignored, as is anything that is not a f
 
 A TCP connection cannot carry a serial break, and the driver sends one on every open, so
 a new connection does what the break does (COM §2.6.10): this port's non-held logs stop,
-its rate returns to 9600, its buffers are cleared.
+its rate returns to 9600, its buffers are cleared (docs/sensors.md#the-twins-timing). Section
+numbers are OEM4 vol. 2's (docs/README.md#sources).
 """
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ from .errors import GnssErrorModel, SkyModel
 
 #: The receiver's position when it has none (seen in the car's data).
 NO_FIX_ECEF = (100.0, 0.0, 0.0)
-#: Latency of an instantaneous Doppler velocity (vol. 2, BESTVEL): always 0.15 s.
+#: Latency of an instantaneous Doppler velocity (BESTVEL, docs/sensors.md#logs-used): always 0.15 s.
 DOPPLER_LATENCY_S = 0.15
 #: How long a receiver keeps reporting its last fix (INSUFFICIENT_OBS, growing sol_age)
 #: before it falls back to the no-fix position; the longest hold in the 2016 drive is 3.1 s.

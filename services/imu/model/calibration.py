@@ -1,18 +1,20 @@
 """A Razor unit's calibration: what turns firmware frames into SI values in the body frame.
 
-The models are the seed's (§5.5), applied to what the firmware sends (board axes, which
-on the car are the body axes: x right, y forward, z up):
+The models are those of docs/sensors.md#imu-sensor-models, applied to what the firmware
+sends (board axes, which on the car are the body axes: x right, y forward, z up):
 
 - accelerometer: the firmware already divides by the gains and offsets in its EEPROM,
   frame[g] = (LSB - eeprom_offset) / eeprom_gain, so the host undoes that and applies its
-  own six-position line LSB = gain * a[g] + offset. Table 5.3 is both, by default.
+  own six-position line LSB = gain * a[g] + offset. The default calibration is both
+  (docs/sensors.md#default-calibration).
 - gyro: rate = frame - bias (the firmware removes a boot-time bias; the host the rest).
-- magnetometer: H_c = C^-1 (H_s - offset) (seed eq. 5.16), then tesla = H_c * tesla_per_unit.
-  Table 5.4 is the default (its offset is in nT; in HMC5843 counts at 1300 counts/gauss).
+- magnetometer: H_c = C^-1 (H_s - offset) (docs/sensors.md#imu-calibration), then
+  tesla = H_c * tesla_per_unit. The default's offset is given in nT; in HMC5843 counts at
+  1300 counts/gauss.
 
 Calibrations live in a TOML file, one table per unit, written by `viena calibrate imu`
-(see `viena.services.imu.calibration_cli`). A unit that has none gets the seed's values,
-and the log says so.
+(see `viena.services.imu.calibration_cli`). A unit that has none gets the default
+calibration ("the seed's values", docs/README.md#glossary), and the log says so.
 """
 from __future__ import annotations
 
@@ -33,10 +35,12 @@ STANDARD_GRAVITY = 9.80665                     # m/s^2 per g
 HMC5843_TESLA_PER_COUNT = 1e-4 / 1300
 FIRMWARES = ("viena", "razor-ahrs")
 
-#: seed table 5.3, per axis x, y, z: LSB = gain * a[g] + offset
+#: the default accelerometer calibration (docs/sensors.md#default-calibration; the names keep the
+#: guide's table numbers), per axis x, y, z: LSB = gain * a[g] + offset
 TABLE_5_3_GAIN_LSB_PER_G = (266.04, 266.27, 253.66)
 TABLE_5_3_OFFSET_LSB = (13.83, -3.18, -3.47)
-#: seed table 5.4 ("Razor 1"): hard-iron offset in nT (x, y), ellipse angle and axis ratio
+#: the default magnetometer calibration ("Razor 1", docs/sensors.md#default-calibration): hard-iron
+#: offset in nT (x, y), ellipse angle and axis ratio
 TABLE_5_4_OFFSET_NT = (-25828.0, -21703.0)
 TABLE_5_4_ALPHA_DEG = 107.5238
 TABLE_5_4_AXIS_RATIO = 0.9567
@@ -132,7 +136,7 @@ class ImuCalibration:
 
 
 def seed_calibration(firmware: str = "viena") -> ImuCalibration:
-    """The seed's values (tables 5.3 and 5.4) in the units each firmware sends."""
+    """The default calibration (docs/sensors.md#default-calibration) in the units each firmware sends."""
     c_inv = _mat(ellipse_c_inv(math.radians(TABLE_5_4_ALPHA_DEG), TABLE_5_4_AXIS_RATIO))
     offset_counts = tuple(nt * 1e-9 / HMC5843_TESLA_PER_COUNT for nt in TABLE_5_4_OFFSET_NT) + (0.0,)
     if firmware == "viena":
@@ -224,7 +228,7 @@ def to_table(cal: ImuCalibration) -> dict:
 
 
 def from_table(table: dict, where: str, source: str) -> ImuCalibration:
-    """A unit's table; sensors or values it leaves out keep the seed's values."""
+    """A unit's table; sensors or values it leaves out keep the default calibration."""
     try:
         firmware = table.get("firmware", "viena")
         base = seed_calibration(firmware) if firmware in FIRMWARES else ImuCalibration(firmware)

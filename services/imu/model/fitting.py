@@ -1,11 +1,12 @@
-"""Least-squares fits behind `viena calibrate imu` (seed §5.5), numpy only.
+"""Least-squares fits behind `viena calibrate imu` (docs/sensors.md#imu-calibration), numpy only.
 
 - accelerometer: six resting poses, one straight line per axis, LSB = gain * a[g] + offset
-  (seed 5.5.1.2; the manufacturer's method, cross-axis terms neglected);
-- gyro: the mean of a still period is the bias (seed eq. 5.13 with G = I);
+  (docs/sensors.md#accelerometer-six-position-fit; the manufacturer's method, cross-axis
+  terms neglected);
+- gyro: the mean of a still period is the bias (docs/sensors.md#gyro-bias);
 - magnetometer, a car turning in circles: the field traces an ellipse in the XY plane;
   its centre is the hard-iron offset and its shape gives C^-1 = R_cal S R_cal^T
-  (seed eq. 5.17-5.21), with z left alone as the seed argues;
+  (docs/sensors.md#magnetometer-2-d-ellipse), with z left alone: a car turns about z only;
 - magnetometer, data spanning 3-D: a full ellipsoid, C^-1 its symmetric square root.
 
 Every fit checks that the data can support it and raises FitError saying why not.
@@ -121,7 +122,7 @@ def fit_gyro_bias(gyro_dps: np.ndarray, max_std_dps: float = 0.5, min_samples: i
     return GyroBiasFit(tuple(float(v) for v in g.mean(axis=0)), tuple(float(v) for v in std), len(g))
 
 
-# -- magnetometer: 2-D ellipse (seed) --------------------------------------------------------
+# -- magnetometer: 2-D ellipse (docs/sensors.md#magnetometer-2-d-ellipse) ----------------------
 @dataclass(frozen=True)
 class Ellipse:
     x0: float
@@ -197,13 +198,13 @@ def angular_coverage(dx, dy, bins: int = 36) -> float:
 
 
 def rotation_z(alpha: float) -> np.ndarray:
-    """Seed eq. 5.18: R_cal."""
+    """R_cal, the turn from +x to the ellipse's major axis (docs/sensors.md#magnetometer-2-d-ellipse)."""
     c, s = math.cos(alpha), math.sin(alpha)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def ellipse_c_inv(alpha: float, axis_ratio: float) -> np.ndarray:
-    """Seed eq. 5.21: C^-1 = R_cal S R_cal^T, S = diag(semi-minor/semi-major, 1, 1)."""
+    """C^-1 = R_cal S R_cal^T, S = diag(semi-minor/semi-major, 1, 1) (docs/sensors.md#magnetometer-2-d-ellipse)."""
     r = rotation_z(alpha)
     return r @ np.diag([axis_ratio, 1.0, 1.0]) @ r.T
 
@@ -228,7 +229,8 @@ def _check_radius(radius: float, min_radius: float | None, what: str) -> None:
 
 
 def fit_mag_ellipse(mag: np.ndarray, min_radius: float | None = None, **kwargs) -> MagFit:
-    """The seed's 2-D method: ellipse in XY, z untouched (offset 0, scale 1). `min_radius`
+    """The 2-D method (docs/sensors.md#magnetometer-2-d-ellipse): ellipse in XY, z untouched
+    (offset 0, scale 1). `min_radius`
     (data units) refuses a fit to noise around one heading."""
     mag = np.asarray(mag, float)
     ell = fit_ellipse(mag[:, 0], mag[:, 1], **kwargs)
@@ -295,7 +297,8 @@ def fit_mag_ellipsoid(mag: np.ndarray, min_points: int = 50, min_span: float = 0
 
 def fit_mag(mag: np.ndarray, method: str = "auto", min_radius_2d: float | None = None,
             min_radius_3d: float | None = None) -> MagFit:
-    """'auto': the 3-D ellipsoid when the data span 3-D, else the seed's 2-D ellipse.
+    """'auto': the 3-D ellipsoid when the data span 3-D, else the 2-D ellipse
+    (docs/sensors.md#magnetometer-3-d-ellipsoid).
     The minimum radii (data units) keep noise around one heading from passing as a fit."""
     if method == "auto":
         method = "ellipsoid-3d" if span_ratio(mag) >= 0.2 else "ellipse-2d"

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 
-#: |Lisbon field| (design §5: [-1121.5, 26479.8, -34884.7] nT ENU)
+#: |Lisbon field| ([-1121.5, 26479.8, -34884.7] nT ENU, docs/frames.md#magnetic-field-in-lisbon)
 LISBON_FIELD_T = 43.81e-6
 
 

@@ -1,6 +1,6 @@
 """Twins of the Razor IMU for the simulated car (they plug into viena.common.twin.serial_port).
 
-    twin = RazorTwin(car.truth)                          # VIENA firmware, seed figures
+    twin = RazorTwin(car.truth)                          # VIENA firmware, default figures
     twin = RazorAhrsTwin(car.truth)                      # stock Razor AHRS firmware
     twin = RazorReplayTwin.parked("speed_20hz")          # a real recording, as frames
     endpoint = SerialEndpoint(twin).start()              # driver opens endpoint.url

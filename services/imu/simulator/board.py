@@ -1,11 +1,12 @@
 """The Razor board on the car as the twins see it: truth in, what the sensors and the
-firmware make of it out (seed §5.5 sensor models, with the seed's figures as defaults).
+firmware make of it out (docs/sensors.md#imu-sensor-models, the default calibration's figures
+as defaults).
 
     accel  LSB = gain * f[g] + offset + noise (ADXL345, integer LSB);
-           the firmware sends (LSB - eeprom_offset) / eeprom_gain           (eq. 5.12)
-    gyro   deg/s = w + bias + noise, in ITG-3200 steps of 1/14.375          (eq. 5.13)
-    mag    counts = C R h_e + offset + noise (HMC5843, integer counts)      (eq. 5.14)
-           with the Lisbon field, C and offset from table 5.4 (z untouched)
+           the firmware sends (LSB - eeprom_offset) / eeprom_gain   (docs/sensors.md#accelerometer-model)
+    gyro   deg/s = w + bias + noise, in ITG-3200 steps of 1/14.375  (docs/sensors.md#gyro-model)
+    mag    counts = C R h_e + offset + noise (HMC5843, integer counts) (docs/sensors.md#magnetometer-model)
+           with the Lisbon field, C and offset from the default calibration (z untouched)
 
 Noise levels are those of the car's parked recordings (traction motor off).
 """
@@ -59,8 +60,8 @@ class RazorBoard:
     accel_noise_lsb: tuple = (1.45, 1.45, 2.0)        # ~0.0055, 0.0055, 0.008 g
     gyro_bias_dps: tuple = (0.01, 0.02, -0.01)        # what the boot average leaves
     gyro_noise_dps: tuple = (0.032, 0.037, 0.034)
-    mag_offset_counts: tuple = _SEED_MAG_OFFSET       # hard iron, table 5.4 in counts
-    mag_c: tuple = _SEED_MAG_C                        # soft iron: the inverse of table 5.4's C^-1
+    mag_offset_counts: tuple = _SEED_MAG_OFFSET       # hard iron, the default's, in counts
+    mag_c: tuple = _SEED_MAG_C                        # soft iron: the inverse of the default C^-1
     mag_noise_counts: tuple = (3.4, 3.3, 5.0)
     tesla_per_count: float = HMC5843_TESLA_PER_COUNT
     field_enu_nT: tuple = LISBON_FIELD_ENU_NT

@@ -26,7 +26,7 @@ class RazorTwin(ByteTwin):
     """The board on the simulated car.
 
     truth      callable returning the latest Truth (`car.truth`)
-    board      the sensor model (gains, biases, noise, iron); seed figures by default
+    board      the sensor model (gains, biases, noise, iron); docs/sensors.md#imu-sensor-models
     boot_s     reset to first frame: the firmware averages the gyro for about 4 s
     delay_s    frames leave this long after they were measured (a slow USB adapter or a
                buffering firmware): the host stamps them late

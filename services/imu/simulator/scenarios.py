@@ -109,7 +109,7 @@ def still(seconds: float = 10.0, yaw: float = 0.3, pitch: float = 0.0, roll: flo
 
 def turning(turns: float = 2.0, period_s: float = 20.0, pitch: float = 0.0, roll: float = 0.0,
             **kwargs) -> Script:
-    """The car driving in circles on level ground (what the seed's 2-D method needs)."""
+    """The car driving in circles on level ground (what the 2-D ellipse method needs)."""
     return Script(lambda t: (2 * math.pi * t / period_s, pitch, roll), turns * period_s, **kwargs)
 
 

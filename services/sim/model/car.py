@@ -1,4 +1,4 @@
-"""The simulated car: a kinematic bicycle model (seed fig. 6.2) that drives a default route.
+"""The simulated car: a kinematic bicycle model (docs/steering.md#the-bicycle-model) that drives a default route.
 
 The car is the hardware of the simulation: every device twin reads its truth. The wheel
 angle comes from the built-in route follower (pure pursuit around a loop at the campus),

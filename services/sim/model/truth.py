@@ -1,6 +1,6 @@
 """Ground truth of the simulated car: the one picture every device twin turns into bytes.
 
-Conventions (design §5): world is local ENU (x East, y North, z Up) at a geodetic origin;
+Conventions (docs/frames.md): world is local ENU (x East, y North, z Up) at a geodetic origin;
 body is x right, y forward, z up, so at yaw 0 the car points North; yaw is positive
 counter-clockwise seen from above (a left turn), compass heading = -yaw.
 Quaternions are Hamilton, scalar first, rotating body vectors into ENU.
@@ -17,7 +17,7 @@ from viena.common.geodesy import LocalFrame
 from viena.common.rotation import euler_from_quat, quat_to_matrix
 from viena.common.schema import F, Schema
 
-#: Lisbon geomagnetic field, Jan 2017 (design §5), nT in ENU.
+#: Lisbon geomagnetic field, Jan 2017 (docs/frames.md#magnetic-field-in-lisbon), nT in ENU.
 LISBON_MAG_ENU_NT = np.array([-1121.5, 26479.8, -34884.7])
 LISBON_DECLINATION_DEG = 2.48
 LISBON_INCLINATION_DEG = 52.77

@@ -1,5 +1,8 @@
 """The DS402 device control words as the EPOS uses them (firmware specification §8.1).
 
+Written out in docs/steering.md#ds402-states; section and table numbers are the EPOS firmware
+specification's (docs/README.md#sources).
+
 The state names and statusword masks are canopen's (`canopen.profiles.p402.State402`), so
 the service, the twin and canopen's BaseNode402 speak of the same states. This module
 adds the EPOS statusword values and the controlword commands by name.

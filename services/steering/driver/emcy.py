@@ -2,6 +2,7 @@
 
 An EMCY frame is `<error code u16><error register u8><5 bytes>` on COB-ID 0x80 + node.
 Code 0x0000 says every error was cleared (EPOS sends it after a successful fault reset).
+Written out in docs/steering.md#emcy; the specification is listed in docs/README.md#sources.
 """
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ TPDO on SYNC, heartbeats both ways, emergencies by name.
 
 The drive runs in EPOS Position Mode (operation mode -1): the setpoint object 0x2062 is the
 position controller's demand directly, clipped by the software position limits 0x607D.
-Process data (all mapped at start, firmware specification §14.16-14.31):
+Process data (all mapped at start, firmware specification §14.16-14.31; docs/steering.md#pdo-mapping):
 
     RPDO1  0x200+id  asynchronous  controlword 0x6040 (u16), position setting 0x2062 (i32)
     TPDO1  0x180+id  on SYNC       statusword 0x6041 (u16), position actual 0x6064 (i32)

@@ -1,6 +1,6 @@
 """Steering calibration: from encoder counts to the bicycle model's wheel angle.
 
-Two calibrations meet here (seed §6.3):
+Two calibrations meet here (docs/steering.md#calibration):
 
 - the static laser fit, done once on the car: delta[deg] = slope * (qc - zeroRef) with
   slope = -7.5014e-4 deg/qc, valid within +-29 deg (both are settings);

@@ -1,4 +1,4 @@
-"""The steering safety envelope (design §8): what may reach the drive, and when to stop.
+"""The steering safety envelope (docs/steering.md#the-envelope): what may reach the drive, and when to stop.
 
 A plain class that is told the time (`now_s`, monotonic seconds; `wall_ns` for the
 setpoints' own stamps) and never reads a clock, so every rule is testable without zenoh,

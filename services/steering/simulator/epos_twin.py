@@ -4,7 +4,7 @@ It is a canopen `LocalNode` built from the same EDS as the driver uses, so SDO r
 writes, PDO mapping, NMT and heartbeats go through canopen's own server code; on top of it
 this module adds what the EPOS firmware does:
 
-- the DS402 state machine driven by the controlword (firmware specification §8.1), fault
+- the DS402 state machine driven by the controlword (docs/steering.md#ds402-states), fault
   reset only on a 0 -> 1 edge of bit 7, and only when no error persists;
 - Position Mode (-1): 0x2062 is the position controller's demand, clipped by the software
   position limits 0x607D; the axis responds as `plant.PositionPlant` (fitted to the car);
@@ -17,7 +17,7 @@ this module adds what the EPOS firmware does:
 
 It also plays the person in the car: after power-up, once the host is talking to the drive
 and the power stage is off, it turns the wheel lock to lock and back to the centre, as
-the calibration procedure asks (seed §6.3). The incremental encoder has no index, so the
+the calibration procedure asks (docs/steering.md#power-up-sweep). The incremental encoder has no index, so the
 position counter starts at 0 wherever the wheel stands at power-up, like the real one.
 """
 from __future__ import annotations

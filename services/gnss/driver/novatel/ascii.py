@@ -1,4 +1,5 @@
 """OEM4 ASCII messages (vol. 2 §1.1.1, table 3): what the receiver says with names, not numbers.
+Written out in docs/sensors.md#novatel-oem4-binary-framing and docs/sensors.md#sbas.
 
     #NAME,port,sequence,%idle,time status,week,seconds,rx status,reserved,sw version;data,...*crc CR LF
 

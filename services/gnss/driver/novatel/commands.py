@@ -2,7 +2,9 @@
 
 Each command is a frozen dataclass whose fields are the manual's binary fields in order;
 ``body()`` packs them and ``from_body()`` unpacks them (the twin uses the latter), so a
-command is one declaration, not an encoder and a decoder kept in step by hand.
+command is one declaration, not an encoder and a decoder kept in step by hand. Tables and
+sections are OEM4 vol. 2's (docs/README.md#sources); what the driver relies on is written out
+in docs/sensors.md#commands-and-responses and docs/sensors.md#start-up-sequence.
 """
 from __future__ import annotations
 

@@ -3,6 +3,8 @@
 Values a newer firmware may send that this table does not know (INS statuses 14-17,
 reserved codes) decode to a member named ``UNKNOWN_<n>`` instead of raising: a log with
 an unexpected status is still a log, and its status must still be reported by name.
+Table numbers are that manual's (docs/README.md#sources); docs/sensors.md#commands-and-responses
+and docs/sensors.md#logs-used say what the driver relies on.
 """
 from __future__ import annotations
 

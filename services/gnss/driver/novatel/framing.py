@@ -1,5 +1,8 @@
 """OEM4 binary framing: sync, 28-byte header, body, CRC32 (vol. 2 §1.1.3, §1.6).
 
+Written out in docs/sensors.md#novatel-oem4-binary-framing and docs/sensors.md#crc-32; the
+manual's section and table numbers are OEM4 vol. 2's (docs/README.md#sources).
+
 The decoder is incremental and never trusts a byte it has not checked: every frame's
 CRC is verified before it is returned, a frame that fails is dropped and the search for
 the next sync resumes one byte after the failed sync, so a corrupted length field can

@@ -1,5 +1,5 @@
 """OEM4 logs the car uses: BESTXYZ (241), BESTPOS (42), BESTVEL (99), every field of
-vol. 2 §3.4.3-3.4.6, statuses and types as named enums.
+vol. 2 §3.4.3-3.4.6, statuses and types as named enums (docs/sensors.md#logs-used).
 
 A decoded log keeps its header, so the receiver's GPS time (week + ms) travels with the
 data, and ``utc_ns`` gives the same instant in UTC.

@@ -63,7 +63,7 @@ from .logs import LogMessage, decode_log
 
 log = logging.getLogger(__name__)
 
-#: Port reset by break (COM command, §2.6.10): two 250 ms breaks 1.5 s apart, then
+#: Port reset by break (COM command, docs/sensors.md#start-up-sequence): two 250 ms breaks 1.5 s apart, then
 #: at least 250 ms of quiet.
 BREAK_S = 0.25
 BREAK_GAP_S = 1.5

@@ -1,4 +1,4 @@
-"""Whether the receiver does SBAS as it was asked, in its own words.
+"""Whether the receiver does SBAS as it was asked, in its own words (docs/sensors.md#sbas).
 
 The OEM4 2.310 manual's table gives SBASCONTROL's keyword as ENABLE 0, DISABLE 1; every
 other ENABLE/DISABLE in that manual, and later NovAtel firmware, number them the other
