@@ -1,4 +1,5 @@
 """`viena export drive.mcap --csv DIR` (or `--json [FILE]`): a recording for spreadsheets and scripts.
+`--format foxglove -o drive-fox.mcap`: a recording Foxglove opens (viena/foxglove_export.py).
 
 --csv writes one file per key into DIR (viena.elettra.gnss.gnss0.fix.csv), one row per
 sample: log_time_ns, publish_time_ns, then the sample's fields, nested ones flattened
@@ -121,16 +122,34 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     what.add_argument("--csv", metavar="DIR", type=Path, help="one CSV file per key into DIR")
     what.add_argument("--json", metavar="FILE", nargs="?", const="-",
                       help="JSON lines into FILE (default stdout)")
+    what.add_argument("--format", choices=["foxglove"],
+                      help="foxglove: an MCAP file Foxglove and Lichtblick open (-o, default "
+                           "DRIVE-foxglove.mcap): json/jsonschema channels plus LocationFix, "
+                           "PoseInFrame, FrameTransform and Log (viena/foxglove_export.py)")
+    parser.add_argument("-o", "--output", metavar="FILE", type=Path,
+                        help="with --format: the file to write")
     parser.add_argument("--keyexpr", nargs="+", metavar="KEYEXPR",
                         help="export only keys these key expressions include")
     return parser
+
+
+def _export_foxglove(recording: Recording, output: Path | None, keys: KeyFilter) -> None:
+    from viena.foxglove_export import default_output, export_foxglove
+
+    done = export_foxglove(recording, output or default_output(recording.path), keys)
+    print(f"exported {done.samples} samples as {done.messages} Foxglove messages into {done.path}",
+          file=sys.stderr)
+    for key, n in sorted(done.invalid.items()):
+        recording.problems.append(f"{n} samples on {key} failed their schema: left out")
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         keys = KeyFilter(args.keyexpr)
         recording = Recording(args.file)
-        if args.csv is not None:
+        if args.format == "foxglove":
+            _export_foxglove(recording, args.output, keys)
+        elif args.csv is not None:
             counts = export_csv(recording, args.csv, keys)
             print(f"exported {sum(counts.values())} samples on {len(counts)} keys into {args.csv}/",
                   file=sys.stderr)

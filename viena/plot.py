@@ -1,7 +1,10 @@
 """`viena plot drive.mcap -o drive.png`: a recorded drive as a picture a person can open.
 
-Left, the car's track on a local map (ENU metres): GNSS fixes (one colour per receiver),
-the estimator's track and, from the simulator, the truth. Right, over time: speed, yaw
+Left, the car's track on a local map (ENU metres): GNSS fixes (one colour per receiver;
+each dot is where the receiver's antenna was, not the car's reference point), the
+estimator's track and, from the simulator, the truth, with the start, the end and arrows
+in the direction of travel. Yaw is unwrapped (a loop adds 360 deg rather than breaking
+at +-180), every source aligned on the truth's turns (else the estimator's). Right, over time: speed, yaw
 and steering angle from the same sources, and how sure the estimator says it is (its
 position's sigma, horizontally and vertically, with, from the simulator, how far off it
 really was). The map's origin is the simulator's origin when the recording has truth,
@@ -248,18 +251,26 @@ ESTIMATOR_STYLE = dict(color="tab:red", lw=1.2, label="estimator")
 GNSS_COLOURS = ["tab:blue", "tab:green", "tab:purple", "tab:orange", "tab:cyan"]
 
 
-def _wrap_breaks(t: np.ndarray, deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Yaw in +-180: NaN where it wraps, so no line crosses the whole axis."""
-    if len(deg) < 2:
-        return t, deg
-    jumps = np.flatnonzero(np.abs(np.diff(deg)) > 180) + 1
-    return np.insert(t, jumps, np.nan), np.insert(deg, jumps, np.nan)
+def unwrap_deg(deg: np.ndarray) -> np.ndarray:
+    """Yaw without its +-180 breaks: each step the shortest turn, so a loop of the track
+    is a ramp of 360 deg rather than a saw tooth."""
+    return np.degrees(np.unwrap(np.radians(deg))) if len(deg) else deg
+
+
+def align_deg(t: np.ndarray, deg: np.ndarray, t_ref: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """An unwrapped yaw shifted by whole turns onto a reference one (the truth, or the
+    estimator), so that two sources of the same heading draw on top of each other."""
+    if not len(deg) or not len(ref):
+        return deg
+    turns = np.round(np.median(np.interp(t, t_ref, ref) - deg) / 360.0)
+    return deg + 360.0 * turns
 
 
 def draw(drive: Drive, title: str, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401  (yaw's axis: a tick every 90 deg)
 
     fig = plt.figure(figsize=(15, 11), dpi=100, layout="constrained")
     grid = fig.add_gridspec(4, 2, width_ratios=[1.15, 1])
@@ -270,16 +281,19 @@ def draw(drive: Drive, title: str, path: Path) -> None:
     sigma = fig.add_subplot(grid[3, 1], sharex=speed)
     fig.suptitle(title, fontsize=12)
 
+    yaw_ref = _yaw_reference(drive)
     for unit, colour in zip(sorted(drive.gnss), GNSS_COLOURS * 4):
         series = drive.gnss[unit]
         style = dict(color=colour, label=f"GNSS {unit}")
-        if series["enu"].t:
+        if series["enu"].t:                   # where the antenna was, not the car's centre
             _, enu = series["enu"].array()
-            track.plot(enu[:, 0], enu[:, 1], ".", ms=3, alpha=0.5, **style)
+            track.plot(enu[:, 0], enu[:, 1], ".", ms=3, alpha=0.5, color=colour,
+                       label=f"GNSS {unit}: antenna positions")
         if series["speed"].t:
             speed.plot(*series["speed"].array(), ".", ms=2, alpha=0.6, **style)
         if series["yaw"].t:
-            yaw.plot(*series["yaw"].array(), ".", ms=2, alpha=0.6, **style)
+            t, deg = series["yaw"].array()
+            yaw.plot(t, align_deg(t, unwrap_deg(deg), *yaw_ref), ".", ms=2, alpha=0.6, **style)
     for source, style in ((drive.truth, TRUTH_STYLE), (drive.estimator, ESTIMATOR_STYLE)):
         if source["enu"].t:
             _, enu = source["enu"].array()
@@ -287,14 +301,15 @@ def draw(drive: Drive, title: str, path: Path) -> None:
         if source["speed"].t:
             speed.plot(*source["speed"].array(), "-", **style)
         if source["yaw"].t:
-            yaw.plot(*_wrap_breaks(*source["yaw"].array()), "-", **style)
+            t, deg = source["yaw"].array()
+            yaw.plot(t, align_deg(t, unwrap_deg(deg), *yaw_ref), "-", **style)
     if drive.truth["wheel"].t:
         steer.plot(*drive.truth["wheel"].array(), "-", **TRUTH_STYLE)
     for name, colour in zip(sorted(drive.steering), ["tab:orange", "tab:purple", "tab:olive", "tab:brown"] * 4):
         steer.plot(*drive.steering[name].array(), "-", lw=1, color=colour, label=f"steering {name}")
     _draw_sigma(sigma, drive)
 
-    _mark_start(track, drive)
+    _mark_ends(track, drive)
     track.set_aspect("equal", adjustable="datalim")
     origin = drive.origin
     where = (f"{origin[0]:.5f}, {origin[1]:.5f}, {origin[2]:.0f} m ({drive.origin_source})"
@@ -302,8 +317,8 @@ def draw(drive: Drive, title: str, path: Path) -> None:
     track.set(title="track", xlabel="east [m]", ylabel="north [m]")
     track.text(0.01, 0.01, f"origin {where}", transform=track.transAxes, fontsize=8, color="0.4")
     speed.set(title="speed", ylabel="m/s")
-    yaw.set(title="yaw (counter-clockwise from north)", ylabel="deg", ylim=(-185, 185),
-            yticks=range(-180, 181, 90))
+    yaw.set(title="yaw (counter-clockwise from north, unwrapped: +360 per left-hand loop)", ylabel="deg")
+    yaw.yaxis.set_major_locator(matplotlib.ticker.MultipleLocator(90))
     steer.set(title="steering (wheel angle)", ylabel="deg")
     sigma.set(title="estimator: position sigma (and, simulated, its true error)", ylabel="m",
               xlabel="time since start [s]")
@@ -336,15 +351,53 @@ def _draw_sigma(ax, drive: Drive) -> None:
                 label="true horizontal error (sim)")
 
 
-def _mark_start(ax, drive: Drive) -> None:
-    for series in [drive.truth["enu"], drive.estimator["enu"],
-                   *(g["enu"] for g in drive.gnss.values())]:
+def _yaw_reference(drive: Drive) -> tuple[np.ndarray, np.ndarray]:
+    """The unwrapped yaw the others are aligned to: the truth's, else the estimator's."""
+    for source in (drive.truth, drive.estimator):
+        if source["yaw"].t:
+            t, deg = source["yaw"].array()
+            return t, unwrap_deg(deg)
+    return np.array([]), np.array([])
+
+
+def _main_track(drive: Drive) -> np.ndarray | None:
+    """The track the marks go on: the truth, else the estimator, else a receiver (x, y rows)."""
+    for series in [drive.truth["enu"], drive.estimator["enu"], *(g["enu"] for g in drive.gnss.values())]:
         if series.t:
-            x, y = series.rows[0][0], series.rows[0][1]
-            ax.plot([x], [y], marker="o", ms=9, mfc="none", mec="0.2", mew=1.5, ls="none")
-            ax.annotate("start", (x, y), xytext=(8, -12), textcoords="offset points",
-                        fontsize=9, color="0.2")
-            return
+            return np.asarray(series.rows, float)[:, :2]
+    return None
+
+
+def _mark_ends(ax, drive: Drive, arrows: int = 10) -> None:
+    """Start (open circle), end (filled square) and, along the way, arrows every so many
+    metres in the direction of travel."""
+    xy = _main_track(drive)
+    if xy is None:
+        return
+    for (x, y), text, marker in ((xy[0], "start", dict(marker="o", mfc="none")),
+                                 (xy[-1], "end", dict(marker="s", mfc="0.2"))):
+        ax.plot([x], [y], ms=9, mec="0.2", mew=1.5, ls="none", **marker)
+        ax.annotate(text, (x, y), xytext=(8, -12), textcoords="offset points", fontsize=9, color="0.2")
+    for tail, head in direction_arrows(xy, arrows):
+        ax.annotate("", head, xytext=tail, arrowprops=dict(arrowstyle="-|>", color="0.2", lw=1.2,
+                                                           mutation_scale=14))
+
+
+def direction_arrows(xy: np.ndarray, count: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(tail, head) of `count` short arrows spread evenly by distance along a track, each
+    pointing the way the car went; none if it hardly moved."""
+    steps = np.hypot(*np.diff(xy, axis=0).T)
+    along = np.concatenate([[0.0], np.cumsum(steps)])
+    length = along[-1] if len(along) else 0.0
+    if length < 1.0:
+        return []
+    out = []
+    for d in length * (np.arange(count) + 0.5) / count:
+        i = int(np.searchsorted(along, d))
+        j = int(np.searchsorted(along, min(d + 0.02 * length, length)))
+        if j > i:
+            out.append((xy[max(i - 1, 0)], xy[j]))
+    return out
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:

@@ -1,0 +1,264 @@
+"""`viena foxglove [--port 8765]`: the car, live, in Foxglove or Lichtblick.
+
+Subscribes to the car (`viena/<car>/**`, the same connection flags and identities as the
+other laptop tools) and serves it with the Foxglove SDK's WebSocket server: open
+`ws://HOST:PORT` in Foxglove ("Open connection" > "Foxglove WebSocket"). Every key is a
+JSON channel whose JSON Schema comes from viena's own schema, so any numeric field can be
+plotted; GNSS receivers, the estimator and the simulated truth are also
+`foxglove.LocationFix` (Map panel), `PoseInFrame` and `FrameTransform` (3D panel, frames
+`enu` -> `car`, `car_truth`), and services' health errors become `foxglove.Log`
+(viena/foxglove_messages.py has the table).
+
+The one thing a client may send is the emergency stop: a service `estop` (Foxglove's
+Service Call panel) that puts on `viena/<car>/steering/estop`, offered only when this
+tool's identity may (the `observer` and `pilot` roles), and never with `--no-estop`.
+
+A browser never slows the car: zenoh's threads only queue each sample (a bounded queue:
+when full, samples are dropped and counted); one thread converts and hands them to the
+server, which keeps at most `--backlog` messages per client and drops the oldest for a
+client that does not keep up. Nobody subscribed to a key: its samples are not even
+decoded. `--max-rate HZ` keeps at most HZ samples a second per key for slow links.
+Ctrl-C or SIGTERM stop it within a second.
+
+The server speaks the Foxglove WebSocket protocol under its current name,
+`foxglove.sdk.v1` (the same protocol as `foxglove.websocket.v1`): current Foxglove, and
+Lichtblick since it accepts that name, connect.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import queue
+import sys
+import threading
+import time
+
+from viena.common.access import ROLES
+from viena.common.keys import Keys
+from viena.common.log import setup_logging
+from viena.common.session import PERSON_IDENTITY, add_common_arguments, config_endpoints, stop_on_signals
+from viena.recording import ReceiveClock
+from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions
+
+log = logging.getLogger("viena.foxglove")
+DEFAULT_PORT = 8765
+#: messages kept per client by the server; the oldest is dropped when a client lags
+DEFAULT_BACKLOG = 256
+#: samples waiting between zenoh's threads and the converting thread (about 2 s of the car)
+QUEUE_SAMPLES = 1000
+ESTOP_SERVICE = "estop"
+ESTOP_KEY = "steering/estop"
+DROP_REPORT_PERIOD_S = 10.0
+
+
+class Downsampler:
+    """At most `rate_hz` samples a second per key (0: all): the first sample of each period
+    passes. Periods follow a steady schedule, so the rate holds on average; after a silence
+    the schedule starts again, so a pause is never followed by a burst."""
+
+    def __init__(self, rate_hz: float):
+        self.period_s = 1.0 / rate_hz if rate_hz > 0 else 0.0
+        self._next: dict[str, float] = {}
+
+    def keep(self, key: str, now_s: float) -> bool:
+        if not self.period_s:
+            return True
+        due = self._next.get(key, 0.0)
+        if now_s < due:
+            return False
+        on_schedule = now_s - due < self.period_s
+        self._next[key] = (due if on_schedule else now_s) + self.period_s
+        return True
+
+
+class Bridge:
+    """zenoh samples -> Foxglove channels. `start()` subscribes and starts the converting
+    thread; `stop()` undeclares, finishes what is queued and stops the thread."""
+
+    def __init__(self, session, keyexpr: str, channels, max_rate_hz: float = 0.0,
+                 queue_samples: int = QUEUE_SAMPLES):
+        self.session, self.keyexpr, self.channels = session, keyexpr, channels
+        self.downsampler = Downsampler(max_rate_hz)
+        self.clock = ReceiveClock()
+        self.received = self.downsampled = self.dropped = 0
+        self.silence = SilenceWarning("viena foxglove", [keyexpr])
+        self.queue_samples = queue_samples
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._subscriber = None
+        self._thread = threading.Thread(target=self._convert_loop, name="foxglove-convert", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+        self._subscriber = self.session.declare_subscriber(self.keyexpr, self._on_sample)
+
+    def _on_sample(self, sample) -> None:
+        """zenoh's thread: leave what nobody watches, thin out, stamp, queue; never block."""
+        self.silence.heard()
+        self.received += 1
+        key, encoding = str(sample.key_expr), str(sample.encoding)
+        if not self.channels.wanted(key, encoding):
+            return
+        if not self.downsampler.keep(key, time.monotonic()):
+            self.downsampled += 1
+            return
+        if self._queue.qsize() >= self.queue_samples:     # the converting thread fell behind
+            self.dropped += 1
+            return
+        self._queue.put((key, encoding, sample.payload.to_bytes(), self.clock()))
+
+    def _convert_loop(self) -> None:
+        publish = self.channels.publish
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            key, encoding, data, log_time = item
+            try:
+                publish(key, encoding, data, log_time)
+            except Exception:           # a bug in one conversion must not end the bridge
+                log.exception("cannot convert a sample on %s", key)
+
+    def stop(self) -> None:
+        if self._subscriber is not None:
+            try:
+                self._subscriber.undeclare()
+            except Exception as exc:
+                log.debug("undeclare failed: %s", exc)
+            self._subscriber = None
+        self._queue.put(None)
+        self._thread.join(timeout=2.0)
+
+
+def estop_allowed(args: argparse.Namespace, link: Connection) -> tuple[bool, str]:
+    """May this tool put the e-stop? On a secured link only if its identity's role says so
+    (the router would refuse it anyway); on an open link anyone may."""
+    from viena.common.keystore import KeyStore
+    from viena.common.secure import is_secure
+
+    if getattr(args, "no_estop", False):
+        return False, "--no-estop"
+    if not any(is_secure(e) for e in config_endpoints(link.conf, "connect")):
+        return True, "open link: no access control"
+    name = args.identity or os.environ.get("VIENA_IDENTITY") or PERSON_IDENTITY
+    try:
+        role = KeyStore.for_car(link.car, args.keys).identity(name).role
+    except Exception as exc:
+        return False, f"identity {name!r}: {exc}"
+    allowed = role in ROLES and ESTOP_KEY in ROLES[role].publish
+    return allowed, f"identity {name!r}, role {role!r}"
+
+
+def estop_service(session, keys: Keys):
+    """The Foxglove service `estop`: a put on steering/estop, answered {"status": "sent"}."""
+    import foxglove
+
+    key = keys.key(*ESTOP_KEY.split("/"))
+    request = {"type": "object", "title": "viena.estop.request",
+               "properties": {"reason": {"type": "string"}}, "additionalProperties": True}
+    response = {"type": "object", "title": "viena.estop.response",
+                "properties": {"status": {"type": "string"}, "key": {"type": "string"}},
+                "required": ["status", "key"]}
+
+    def schema(s: dict) -> foxglove.MessageSchema:
+        return foxglove.MessageSchema(encoding="json", schema=foxglove.Schema(
+            name=s["title"], encoding="jsonschema", data=json.dumps(s).encode()))
+
+    def handle(req) -> bytes:
+        reason = ""
+        try:
+            body = json.loads(req.payload or b"{}")
+            reason = str(body.get("reason", "")) if isinstance(body, dict) else ""
+        except ValueError:
+            pass
+        log.warning("e-stop from Foxglove client %s%s", req.client_id, f": {reason}" if reason else "")
+        session.put(key, json.dumps({"by": "viena foxglove", "client": req.client_id, "reason": reason}),
+                    encoding="application/json")
+        return json.dumps({"status": "sent", "key": key}).encode()
+
+    return foxglove.Service(ESTOP_SERVICE, schema=foxglove.ServiceSchema(
+        "viena.estop", request=schema(request), response=schema(response)), handler=handle)
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="viena foxglove", description=__doc__,
+                                               formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("keyexpr", nargs="?", default=None,
+                        help="what to serve (default viena/<car>/**)")
+    parser.add_argument("--port", type=int, default=DEFAULT_PORT,
+                        help=f"WebSocket port (default {DEFAULT_PORT}; 0 picks a free one)")
+    parser.add_argument("--host", default="127.0.0.1",
+                        help="address to listen on (default 127.0.0.1; 0.0.0.0 for other machines)")
+    parser.add_argument("--max-rate", type=float, default=0.0, metavar="HZ",
+                        help="at most HZ samples a second per key, for slow links (default 0: all)")
+    parser.add_argument("--backlog", type=int, default=DEFAULT_BACKLOG, metavar="N",
+                        help=f"messages kept per client; a client that lags loses the oldest "
+                             f"(default {DEFAULT_BACKLOG})")
+    parser.add_argument("--no-estop", action="store_true", help="offer no e-stop service")
+    add_timeout_flag(parser)
+    add_common_arguments(parser)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    return guarded("viena foxglove", _run, args)
+
+
+def _run(args: argparse.Namespace) -> int:
+    import foxglove
+    from foxglove.websocket import Capability
+
+    from viena.foxglove_channels import FoxgloveChannels
+
+    setup_logging(args.log_level)
+    if args.backlog < 1 or args.max_rate < 0 or not 0 <= args.port < 65536:
+        raise Fail("--backlog must be >= 1, --max-rate >= 0 and --port within 0..65535", 2)
+    link = Connection(args)
+    [keyexpr] = key_expressions([args.keyexpr or link.keys.all])
+    may_estop, why = estop_allowed(args, link)
+    stop = stop_on_signals()
+    session = link.open(stop, args.timeout)
+    if session is None:
+        return 0
+    context = foxglove.Context()
+    services = [estop_service(session, link.keys)] if may_estop else []
+    try:
+        server = foxglove.start_server(
+            name=f"viena {link.car}", host=args.host, port=args.port, context=context,
+            capabilities=[Capability.Services] if services else [], services=services or None,
+            supported_encodings=["json"], message_backlog_size=args.backlog)
+    except Exception as exc:
+        session.close()
+        raise Fail(f"cannot serve on {args.host}:{args.port}: {exc}") from None
+    channels = FoxgloveChannels(context)
+    bridge = Bridge(session, keyexpr, channels, args.max_rate)
+    bridge.start()
+    print(f"viena foxglove: serving {keyexpr} on ws://{args.host}:{server.port} "
+          f"(e-stop {'offered' if services else 'not offered'}: {why})", file=sys.stderr, flush=True)
+    reported = 0
+    next_report = time.monotonic() + DROP_REPORT_PERIOD_S
+    try:
+        while not stop.wait(0.2):
+            bridge.silence.check()
+            if time.monotonic() >= next_report:
+                next_report = time.monotonic() + DROP_REPORT_PERIOD_S
+                lost = bridge.dropped + sum(channels.invalid.values())
+                if lost > reported:
+                    log.warning("%d samples dropped (converting fell behind), %d failed their schema",
+                                bridge.dropped, sum(channels.invalid.values()))
+                    reported = lost
+    finally:
+        bridge.stop()
+        server.stop()
+        channels.close()
+        session.close()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(build_parser().parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,107 @@
+"""The Foxglove channels of one sink, a live WebSocket server or an MCAP file, made as
+the car's keys appear: what `viena foxglove` and `viena export --format foxglove` share.
+
+`FoxgloveChannels.publish(key, encoding, data)` takes a sample as it came from zenoh or a
+recording. The first sample of a key advertises its JSON channel (and the channels of
+the Foxglove messages it makes: viena/foxglove_messages.py); then each sample is decoded,
+checked by its schema and logged on them. A sample nobody subscribed to is not even
+decoded: on the live bridge that is most of them. A sample that fails its schema is
+counted in `invalid`, never sent.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import foxglove
+import foxglove.channels
+
+from viena.common.errors import SampleError
+from viena.foxglove_messages import Converter, Route
+
+#: channel metadata: the zenoh encoding the key's samples came with
+ENCODING_METADATA = "viena_encoding"
+
+
+@dataclass
+class _KeyChannels:
+    route: Route
+    json: foxglove.Channel
+    derived: dict[str, object] = field(default_factory=dict)      # topic -> typed channel
+
+    def watched(self) -> bool:
+        return self.json.has_sinks() or any(ch.has_sinks() for ch in self.derived.values())
+
+
+class FoxgloveChannels:
+    """Channels in one foxglove.Context, by key and encoding."""
+
+    def __init__(self, context: foxglove.Context):
+        self.context = context
+        self.converter = Converter()
+        self.invalid: dict[str, int] = {}
+        self.logged = 0
+        self._keys: dict[tuple[str, str], _KeyChannels] = {}
+        self._typed: dict[str, object] = {}
+
+    def wanted(self, key: str, encoding: str) -> bool:
+        """Whether a sample of this key is worth handing over: its channels are not
+        advertised yet, or someone subscribed to one of them. Cheap, from any thread."""
+        channels = self._keys.get((key, encoding))
+        return channels is None or channels.watched()
+
+    def publish(self, key: str, encoding: str, data: bytes, log_time: int | None = None) -> bool:
+        """Log one sample (and what it makes) if anyone listens; False if it failed its schema."""
+        channels = self._keys.get((key, encoding))
+        if channels is None:
+            channels = self._keys[(key, encoding)] = self._advertise(key, encoding)
+        if not channels.watched():
+            return True
+        try:
+            value = self.converter.decode(channels.route, data)
+        except SampleError:
+            self.invalid[key] = self.invalid.get(key, 0) + 1
+            return False
+        if channels.json.has_sinks():
+            channels.json.log(channels.route.json(value), log_time=log_time)
+            self.logged += 1
+        if not any(ch.has_sinks() for ch in channels.derived.values()):
+            return True
+        for derived in self.converter.derived(channels.route, value):
+            channels.derived[derived.topic].log(derived.message, log_time=log_time)
+            self.logged += 1
+        return True
+
+    def _advertise(self, key: str, encoding: str) -> _KeyChannels:
+        route = self.converter.route(key, encoding)
+        schema = route.json_schema()
+        metadata = {ENCODING_METADATA: encoding}
+        if schema is None:                      # no known schema: schemaless JSON
+            json_channel = foxglove.Channel(key, message_encoding="json", context=self.context, metadata=metadata)
+        else:
+            json_channel = foxglove.Channel(key, schema=schema, context=self.context, metadata=metadata)
+        channels = _KeyChannels(route, json_channel)
+        for topic, kind in route.topics:
+            typed = self._typed.get(topic)
+            if typed is None:
+                make = getattr(foxglove.channels, f"{kind}Channel")
+                typed = self._typed[topic] = make(topic, context=self.context)
+            channels.derived[topic] = typed
+        return channels
+
+    @property
+    def keys(self) -> int:
+        """How many keys have a channel."""
+        return len({key for key, _ in self._keys})
+
+    @property
+    def topics(self) -> list[str]:
+        return sorted({k for k, _ in self._keys} | set(self._typed))
+
+    def close(self) -> None:
+        for channels in self._keys.values():
+            channels.json.close()
+        for typed in self._typed.values():
+            typed.close()
+        self._keys.clear()
+        self._typed.clear()
+

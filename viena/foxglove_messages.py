@@ -1,0 +1,269 @@
+"""viena samples as Foxglove messages: what the live bridge (viena/foxglove.py) and the
+export (`viena export --format foxglove`) both send. No I/O, no zenoh, no server here.
+
+Every key is a JSON channel (`Converter.json`), with the JSON Schema generated from the
+viena schema its encoding names (common/json_schema.py). Besides, some samples also say
+something Foxglove's panels understand (`Converter.derived`), under `viena/<car>/foxglove/`:
+
+| from | topic | Foxglove schema |
+|---|---|---|
+| `gnss/<unit>/fix` (valid fixes) | `foxglove/gnss/<unit>/location` | `foxglove.LocationFix` (the antenna) |
+| `estimator/state` | `foxglove/estimator/location` | `foxglove.LocationFix`, full ENU covariance |
+| `estimator/state` | `foxglove/estimator/pose` | `foxglove.PoseInFrame` in frame `enu` |
+| `sim/truth` | `foxglove/sim/truth/location`, `.../pose` | as above |
+| `estimator/state`, `sim/truth` | `foxglove/tf` | `foxglove.FrameTransform` `enu` -> `car`, `enu` -> `car_truth` |
+| `<service>/health` | `foxglove/log` | `foxglove.Log`, when an error counter grows |
+
+Frames: `enu` is viena's local ENU world (x East, y North, z Up) at the estimator's or the
+simulator's origin (the same configured origin on the car); `car` and `car_truth` are the
+body frame (x right, y forward, z up), so Foxglove's 3D panel shows the car's axes as
+viena defines them. LocationFix covariances are ENU, row-major, m^2; headings are
+radians clockwise from north (viena's yaw is counter-clockwise: heading = -yaw).
+"""
+from __future__ import annotations
+
+import importlib
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from foxglove.messages import (
+    Color,
+    FrameTransform,
+    LocationFix,
+    LocationFixPositionCovarianceType,
+    Log,
+    LogLevel,
+    Pose,
+    PoseInFrame,
+    Quaternion,
+    Timestamp,
+    Vector3,
+)
+
+from viena.common.geodesy import LocalFrame
+from viena.common.json_schema import JsonForm
+from viena.common.payload import to_jsonable
+from viena.common.schema import Schema, schema_of
+from viena.recording import decode_value
+
+#: the modules that own the car's schemas: importing them registers the schemas by name
+SCHEMA_OWNERS = ("viena.services.gnss.model.fix", "viena.services.imu.model.sample",
+                 "viena.services.steering.model.state", "viena.services.estimator.state",
+                 "viena.services.sim.model.truth", "viena.common.health")
+for _owner in SCHEMA_OWNERS:
+    importlib.import_module(_owner)
+
+from viena.common.health import HEALTH  # noqa: E402  (after the owners, for one import list)
+from viena.services.estimator.state import STATE  # noqa: E402
+from viena.services.gnss.model.fix import FIX, NO_FIX_ECEF  # noqa: E402
+from viena.services.sim.model.truth import TRUTH  # noqa: E402
+
+WORLD_FRAME = "enu"
+CAR_FRAME = "car"
+TRUTH_FRAME = "car_truth"
+#: LocationFix colours on the map: the estimator red, the truth black, receivers in turn
+ESTIMATOR_COLOUR = Color(r=0.84, g=0.15, b=0.16, a=1.0)
+TRUTH_COLOUR = Color(r=0.0, g=0.0, b=0.0, a=1.0)
+GNSS_COLOURS = [Color(r=0.12, g=0.47, b=0.71, a=1.0), Color(r=0.17, g=0.63, b=0.17, a=1.0),
+                Color(r=0.58, g=0.40, b=0.74, a=1.0), Color(r=1.0, g=0.50, b=0.05, a=1.0)]
+#: a receiver's local frame (for its velocity and covariance in ENU) is made anew this far away
+FRAME_REUSE_M = 1000.0
+
+
+@dataclass(frozen=True)
+class Route:
+    """Where a key's samples go: its JSON channel's schema (None: schemaless JSON), the
+    kind of Foxglove messages they make ('' for none) and those messages' (topic, kind)."""
+
+    key: str
+    encoding: str
+    schema: Schema | None
+    kind: str
+    topics: list[tuple[str, str]]
+    form: JsonForm | None = None
+
+    def json_schema(self) -> dict | None:
+        return None if self.form is None else self.form.schema
+
+    def json(self, value: Any) -> bytes:
+        """A decoded sample as the JSON text its channel's schema describes."""
+        return json_bytes(value if self.form is None else self.form.value(value))
+
+
+@dataclass(frozen=True)
+class Derived:
+    """A Foxglove message derived from a sample: its topic, its kind (`LocationFix`,
+    `PoseInFrame`, `FrameTransform`, `Log`: the name of its foxglove.channels class
+    without `Channel`), and the message."""
+
+    topic: str
+    kind: str
+    message: Any
+
+
+def timestamp(t_ns: int) -> Timestamp:
+    return Timestamp(t_ns // 1_000_000_000, t_ns % 1_000_000_000)
+
+
+_strict_json = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
+
+
+def json_bytes(value: Any) -> bytes:
+    """A decoded sample as JSON text: non-finite floats as null, bytes as hex (JSON has
+    neither), without the walk through the sample when it needs none."""
+    try:
+        return _strict_json(value).encode()
+    except (TypeError, ValueError):
+        return _strict_json(to_jsonable(value)).encode()
+
+
+class Converter:
+    """viena samples -> Foxglove messages, for any car (its topics under its own
+    `viena/<car>/foxglove/`). Keeps what a conversion needs from earlier samples: each
+    service's error counts (to log what grew), each receiver's local frame."""
+
+    def __init__(self):
+        self._forms: dict[str, JsonForm] = {}
+        self._errors: dict[str, dict[str, int]] = {}
+        self._frames: dict[str, LocalFrame] = {}
+        self._colours: dict[str, Color] = {}
+
+    def route(self, key: str, encoding: str) -> Route:
+        """How samples of this key and encoding are converted (worked out once per key)."""
+        schema = schema_of(encoding)
+        kind = _derived_kind(schema)
+        parts = key.split("/")
+        form = None if schema is None else self._forms.setdefault(schema.name, JsonForm(schema))
+        if len(parts) < 3 or parts[0] != "viena":
+            return Route(key, encoding, schema, "", [], form)
+        root, local = f"viena/{parts[1]}/foxglove", parts[2:]
+        tf = (f"{root}/tf", "FrameTransform")
+        topics: list[tuple[str, str]] = []
+        if kind == "fix" and len(local) == 3:
+            topics = [(f"{root}/gnss/{local[1]}/location", "LocationFix")]
+        elif kind == "estimator":
+            topics = [(f"{root}/estimator/location", "LocationFix"), (f"{root}/estimator/pose", "PoseInFrame"), tf]
+        elif kind == "truth":
+            topics = [(f"{root}/sim/truth/location", "LocationFix"), (f"{root}/sim/truth/pose", "PoseInFrame"), tf]
+        elif kind == "health":
+            topics = [(f"{root}/log", "Log")]
+        return Route(key, encoding, schema, kind if topics else "", topics, form)
+
+    @staticmethod
+    def decode(route: Route, data: bytes) -> Any:
+        """A payload as checked values; a SampleError if it does not pass its schema (or is
+        neither msgpack nor JSON)."""
+        schema = route.schema
+        return decode_value(data, route.encoding) if schema is None else schema.decode(data)
+
+    def derived(self, route: Route, sample: Any) -> list[Derived]:
+        """The Foxglove messages a checked sample makes (see the module's table)."""
+        kind, topics = route.kind, route.topics
+        if not kind or not isinstance(sample, dict):
+            return []
+        if kind == "fix":
+            fix = self.gnss_location(sample, topics[0][0].split("/")[-2])
+            return [] if fix is None else [Derived(topics[0][0], "LocationFix", fix)]
+        if kind == "estimator":
+            return self._pose_messages(sample, topics, CAR_FRAME, valid=sample.get("position_valid") is True)
+        if kind == "truth":
+            return self._pose_messages(sample, topics, TRUTH_FRAME, valid=True)
+        return [Derived(topics[0][0], "Log", log) for log in self.health_logs(route.key, sample)]
+
+    def gnss_location(self, fix: dict, unit: str) -> LocationFix | None:
+        """A valid fix as the antenna's LocationFix, its sigmas as an ENU covariance."""
+        if not fix["valid"] or tuple(fix["ecef_m"]) == NO_FIX_ECEF:
+            return None
+        lat, lon, h = fix["lat_deg"], fix["lon_deg"], fix["height_m"]
+        frame = self._frame(unit, fix["ecef_m"], lat, lon, h)
+        enu_sigma = fix.get("enu_sigma_m")
+        if enu_sigma is None and fix.get("sigma_h_m") is not None and fix.get("sigma_v_m") is not None:
+            enu_sigma = (fix["sigma_h_m"], fix["sigma_h_m"], fix["sigma_v_m"])
+        if enu_sigma is not None:
+            cov = [enu_sigma[0] ** 2, 0.0, 0.0, 0.0, enu_sigma[1] ** 2, 0.0, 0.0, 0.0, enu_sigma[2] ** 2]
+            cov_type = LocationFixPositionCovarianceType.DiagonalKnown
+        else:                                # ECEF sigmas, their cross terms unknown
+            cov = [float(v) for v in frame.cov_to_enu(fix["ecef_sigma_m"]).ravel()]
+            cov_type = LocationFixPositionCovarianceType.Approximated
+        vel = fix.get("vel_ecef_mps")
+        velocity = None if vel is None else _vector(frame.vector_to_enu(vel))
+        colour = self._colours.setdefault(unit, GNSS_COLOURS[len(self._colours) % len(GNSS_COLOURS)])
+        return LocationFix(timestamp=timestamp(fix["t"]), frame_id=unit, latitude=lat, longitude=lon,
+                           altitude=h, position_covariance=cov, position_covariance_type=cov_type,
+                           velocity=velocity, color=colour)
+
+    def _frame(self, unit: str, ecef_m, lat: float, lon: float, h: float) -> LocalFrame:
+        frame = self._frames.get(unit)
+        if frame is None or _distance_sq(frame.enu_of_ecef(ecef_m)) > FRAME_REUSE_M ** 2:
+            frame = self._frames[unit] = LocalFrame(lat, lon, h)
+        return frame
+
+    def _pose_messages(self, s: dict, topics: list[tuple[str, str]], child: str, valid: bool) -> list[Derived]:
+        """LocationFix, PoseInFrame and FrameTransform of an estimator state or a truth."""
+        if not valid:
+            return []
+        stamp = timestamp(s["t"])
+        w, x, y, z = s["quat"]
+        rotation = Quaternion(x=x, y=y, z=z, w=w)
+        position = _vector(s["enu_m"])
+        out = [Derived(topics[1][0], "PoseInFrame", PoseInFrame(
+                   timestamp=stamp, frame_id=WORLD_FRAME, pose=Pose(position=position, orientation=rotation))),
+               Derived(topics[2][0], "FrameTransform", FrameTransform(
+                   timestamp=stamp, parent_frame_id=WORLD_FRAME, child_frame_id=child,
+                   translation=position, rotation=rotation))]
+        if s.get("lat_deg") is not None and s.get("lon_deg") is not None:
+            out.insert(0, Derived(topics[0][0], "LocationFix", self._car_location(s, stamp, child)))
+        return out
+
+    @staticmethod
+    def _car_location(s: dict, stamp: Timestamp, frame: str) -> LocationFix:
+        yaw = s["yaw_rad"] if "yaw_rad" in s else s["euler_rad"][0]
+        heading = (-yaw) % (2 * math.pi)                  # clockwise from north
+        cov = s.get("enu_cov_m2")
+        if cov is not None:
+            ee, en, eu, nn, nu, uu = cov
+            matrix = [ee, en, eu, en, nn, nu, eu, nu, uu]
+            cov_type = LocationFixPositionCovarianceType.Known
+        else:
+            matrix, cov_type = [0.0] * 9, LocationFixPositionCovarianceType.Unknown
+        return LocationFix(timestamp=stamp, frame_id=frame, latitude=s["lat_deg"], longitude=s["lon_deg"],
+                           altitude=s.get("height_m") or 0.0, position_covariance=matrix,
+                           position_covariance_type=cov_type, heading=heading,
+                           velocity=_vector(s["vel_enu_mps"]),
+                           color=TRUTH_COLOUR if frame == TRUTH_FRAME else ESTIMATOR_COLOUR)
+
+    def health_logs(self, key: str, health: dict) -> list[Log]:
+        """A Log for each error counter of a service that grew since its last health
+        (and, the first time a service is heard, for the errors it had already)."""
+        name = health["service"] + (f"/{health['unit']}" if health.get("unit") else "")
+        now = {str(k): v for k, v in health["errors"].items() if type(v) is int}
+        before = self._errors.get(key)
+        self._errors[key] = now
+        last_error = (health.get("state") or {}).get("last_error")
+        logs = []
+        for error, total in sorted(now.items()):
+            grown = total - (before or {}).get(error, 0)
+            if grown <= 0:
+                continue
+            since = "since it started" if before is None else "in the last health period"
+            text = f"{name}: {error} +{grown} {since} (total {total})"
+            if last_error:
+                text += f"; last error: {last_error}"
+            logs.append(Log(timestamp=timestamp(health["t"]), level=LogLevel.Warning if before is None
+                            else LogLevel.Error, message=text, name=name))
+        return logs
+
+
+def _derived_kind(schema: Schema | None) -> str:
+    return {FIX: "fix", STATE: "estimator", TRUTH: "truth", HEALTH: "health"}.get(schema, "") if schema else ""
+
+
+def _vector(xyz) -> Vector3:
+    return Vector3(x=xyz[0], y=xyz[1], z=xyz[2])
+
+
+def _distance_sq(enu) -> float:
+    return enu[0] ** 2 + enu[1] ** 2 + enu[2] ** 2
+
