@@ -6,6 +6,9 @@ time the sample's own `t`. Ctrl-C, SIGTERM or --duration close the file cleanly.
 While recording, the file is `drive.mcap.part`; it takes its real name only once it is
 complete, so a recording cut short (killed, disk full) never passes for a good one
 (`viena replay` and `viena export` still read a `.part` as far as it goes).
+Chunks are closed and made durable every FLUSH_PERIOD_S, so a recorder killed (kill -9,
+power cut) loses at most that much; `viena record --repair drive.mcap.part` then rewrites
+what is there as a complete `drive.mcap` that any MCAP reader opens.
 
 Zenoh's threads only stamp and queue each sample; one thread writes, so a slow disk
 delays the file, not the dataflow. Nothing on the keys for a few seconds is said on
@@ -25,7 +28,7 @@ from pathlib import Path
 
 from viena.common.log import setup_logging
 from viena.common.session import add_common_arguments, stop_on_signals
-from viena.recording import ReceiveClock, RecordingWriter, human_bytes
+from viena.recording import ReceiveClock, RecordingError, RecordingWriter, human_bytes, repair
 from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions
 
 log = logging.getLogger("viena.record")
@@ -128,6 +131,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--duration", type=float, default=0.0, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress line")
+    parser.add_argument("--repair", metavar="FILE", default=None,
+                        help="record nothing: rewrite FILE, a recording cut short (drive.mcap.part "
+                             "after a kill or a power cut), as a complete MCAP file (-o, default "
+                             "drive.mcap) with every sample still readable")
     add_timeout_flag(parser)
     add_common_arguments(parser)
     parser._option_string_actions["--car"].help = (
@@ -174,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
+    if args.repair is not None:
+        return _repair(args)
     link = Connection(args)
     keyexprs = key_expressions(args.keyexprs or [link.keys.all if args.car or "car" in link.toml
                                                  else "viena/**"])
@@ -211,6 +220,23 @@ def _run(args: argparse.Namespace) -> int:
         raise Fail(f"nothing came on {', '.join(repr(k) for k in keyexprs)}: no file written (is "
                    f"the key right? `viena list` shows what the car publishes)")
     progress.done(path)
+    return 0
+
+
+def _repair(args: argparse.Namespace) -> int:
+    """`--repair FILE`: a new, complete file; the damaged one is left as it was."""
+    if args.keyexprs:
+        raise Fail("--repair takes a file, not key expressions", status=2)
+    try:
+        path, samples, lost = repair(args.repair, args.output)
+    except RecordingError as exc:
+        raise Fail(str(exc), status=2) from None
+    except OSError as exc:
+        raise Fail(f"cannot repair {args.repair}: {exc.strerror or exc}") from None
+    for line in lost:
+        print(f"viena record: {args.repair}: {line}", file=sys.stderr)
+    print(f"repaired {args.repair} into {path}: {samples} samples ({human_bytes(path.stat().st_size)})",
+          file=sys.stderr, flush=True)
     return 0
 
 

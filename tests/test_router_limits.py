@@ -1,0 +1,49 @@
+"""What the car's router itself refuses (compose/zenoh/router.json5, issue 15): commands
+faster than any person or pilot sends them, from any one client. A flood of setpoints then
+costs the steering service nothing, whoever sends it, and the owner's commands, on their
+own connection, pass as before."""
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+import zenoh
+
+from viena.common.config import load_zenoh_config
+
+pytestmark = pytest.mark.slow
+
+KEY = "viena/elettra/steering/setpoint"
+#: the limit router.json5 sets per client and command key
+LIMIT_HZ = 200.0
+
+
+def test_a_setpoint_flood_from_one_client_is_cut_to_the_limit_and_another_client_still_passes(router, session):
+    heard: dict[bytes, int] = {}
+    lock = threading.Lock()
+
+    def on_sample(sample):
+        with lock:
+            tag = sample.payload.to_bytes()
+            heard[tag] = heard.get(tag, 0) + 1
+
+    sub = session.declare_subscriber(KEY, on_sample)
+    with zenoh.open(load_zenoh_config(mode="client", connect=[router])) as flooder, \
+            zenoh.open(load_zenoh_config(mode="client", connect=[router])) as owner:
+        time.sleep(0.5)                                     # routes in place (no readiness to wait on)
+        flood_pub, owner_pub = flooder.declare_publisher(KEY), owner.declare_publisher(KEY)
+        t0 = time.monotonic()
+        sent = 0
+        while sent < 5000:
+            flood_pub.put(b"flood")
+            sent += 1
+            if sent % 250 == 0:                             # the owner: one setpoint per 250 flood puts
+                owner_pub.put(b"owner")
+                time.sleep(0.02)                            # never faster than 50 Hz
+        flooding_s = time.monotonic() - t0
+        time.sleep(0.5)
+    sub.undeclare()
+    assert heard.get(b"owner") == 20                        # the owner's every setpoint, at 50 Hz at most
+    assert heard.get(b"flood", 0) <= LIMIT_HZ * flooding_s + 2
+    assert heard.get(b"flood", 0) < sent / 2, (heard, flooding_s)
