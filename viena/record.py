@@ -131,6 +131,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--duration", type=float, default=0.0, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress line")
+    parser.add_argument("--foxglove", action="store_true",
+                        help="write a recording Foxglove and Lichtblick open (JSON with schemas, map "
+                             "and pose channels) instead of viena's msgpack one, which alone replays "
+                             "exactly")
     parser.add_argument("--repair", metavar="FILE", default=None,
                         help="record nothing: rewrite FILE, a recording cut short (drive.mcap.part "
                              "after a kill or a power cut), as a complete MCAP file (-o, default "
@@ -188,9 +192,13 @@ def _run(args: argparse.Namespace) -> int:
                                                  else "viena/**"])
     output = Path(args.output or default_output())
     try:
-        writer = RecordingWriter(output, metadata={
-            "keyexprs": " ".join(keyexprs), "car": link.car, "host": socket.gethostname(),
-            "started": datetime.now(UTC).isoformat(timespec="seconds")})
+        metadata = {"keyexprs": " ".join(keyexprs), "car": link.car, "host": socket.gethostname(),
+                    "started": datetime.now(UTC).isoformat(timespec="seconds")}
+        if args.foxglove:
+            from viena.foxglove_export import FoxgloveWriter  # the SDK only when asked for
+            writer = FoxgloveWriter(output, metadata=metadata)
+        else:
+            writer = RecordingWriter(output, metadata=metadata)
     except OSError as exc:
         raise Fail(f"cannot write {output}: {exc.strerror or exc}") from None
 
