@@ -38,7 +38,8 @@ NAME = re.compile(r"^[a-z0-9][a-z0-9_-]{0,31}$")
 #: the identities `viena keys init` creates: every process of the car, one pilot, one observer
 STANDARD_IDENTITIES = {
     "gnss0": "gnss", "gnss1": "gnss", "razor0": "imu", "steering": "steering",
-    "estimator": "estimator", "sim": "sim", "pilot": "pilot", "observer": "observer",
+    "estimator": "estimator", "sim": "sim", "autopilot": "autopilot", "pilot": "pilot",
+    "observer": "observer",
 }
 CA_DAYS = 3650
 ROUTER_DAYS = 1825

@@ -103,7 +103,7 @@ def test_missing_store(tmp_path):
 
 
 def test_unknown_identity_lists_what_exists(fresh):
-    with pytest.raises(SecurityError, match=r"no identity 'carol' .*have: estimator, gnss0.*viena keys issue ROLE carol"):
+    with pytest.raises(SecurityError, match=r"no identity 'carol' .*have: autopilot, estimator, gnss0.*viena keys issue ROLE carol"):
         fresh.identity("carol")
 
 

@@ -1,0 +1,76 @@
+"""viena.pilot.state/1: what the pilot is doing, on viena/<car>/pilot/state (20 Hz).
+
+Angles in degrees as their names say (people read them; the Titans' geo values were
+degrees too), distances in m. Signs: `cross_track_m` > 0 when the car is left of the
+route; the heading errors are the way to go minus the car's compass heading, +-180 deg,
+> 0: turn right (the Titans' convention, docs/pilot.md#state); `wheel_cmd_deg` > 0 left
+(the steering's convention). Fields about the route and the car are null when there is
+no route or no usable estimate.
+"""
+from __future__ import annotations
+
+from viena.common.display import fmt_num
+from viena.common.schema import F, Schema
+
+MODES = ("idle", "following", "finished", "stopped")
+
+STATE = Schema("viena.pilot.state/1", {
+    "t": F.time,                                   # when this state was made, ns UTC
+    "seq": F.int,
+    "mode": F.enum(*MODES),
+    "reason": F.optional(F.str),                   # why stopped (or why the last start was refused)
+    "controller": F.str,                           # pure_pursuit or stanley
+    "armed": F.bool,                               # the pilot holds a steering lease
+    "route_points": F.int,                         # 0: no route
+    "route_length_m": F.optional(F.float),
+    "checkpoint": F.optional(F.int),               # index of the next checkpoint; null past the last
+    "checkpoint_distance_m": F.optional(F.float),
+    "checkpoint_bearing_deg": F.optional(F.float),        # from north, clockwise, +-180
+    "checkpoint_heading_error_deg": F.optional(F.float),  # bearing - heading, > 0: turn right
+    "progress_m": F.optional(F.float),             # along the route from its first checkpoint
+    "progress": F.optional(F.float),               # the same as a fraction of the route, 0..1
+    "cross_track_m": F.optional(F.float),
+    "heading_error_deg": F.optional(F.float),      # the route's way - heading, > 0: turn right
+    "wheel_cmd_deg": F.optional(F.float),          # the last wheel angle sent
+    "lookahead_m": F.optional(F.float),
+    "target_enu_m": F.optional(F.vec(2)),          # the point aimed at, in the estimator's ENU
+    "route_speed_mps": F.optional(F.float),        # the route's advised speed here (the person drives)
+    "estimate_age_s": F.optional(F.float),
+    "setpoints": F.int,                            # setpoints sent since start
+})
+
+
+#: the route the pilot holds, on viena/<car>/pilot/path: when it is taken and every few
+#: seconds after, so a recording (`viena record`) and a late viewer (`viena plot`, the
+#: monitor, Foxglove's map) have it
+PATH = Schema("viena.pilot.path/1", {
+    "t": F.time,
+    "form": F.str,                                 # geojson, points, titans, csv
+    "lat_deg": F.list(F.float),                    # the checkpoints, in order
+    "lon_deg": F.list(F.float),
+    "speeds_mps": F.list(F.optional(F.float)),     # advised speeds, null where none
+    "length_m": F.float,
+})
+
+
+def path_sample(route, t_ns: int) -> dict:
+    """A viena.pilot.path/1 sample of a Route (model/route.py)."""
+    return {"t": t_ns, "form": route.form, "lat_deg": [p[0] for p in route.points],
+            "lon_deg": [p[1] for p in route.points], "speeds_mps": list(route.speeds_mps),
+            "length_m": route.length_m}
+
+
+def monitor_view(state: dict) -> dict[str, str]:
+    """How the monitor shows a pilot state."""
+    mode = str(state.get("mode", "-"))
+    if state.get("reason"):
+        mode += f" ({state['reason']})"
+    return {
+        "mode": mode,
+        "checkpoint": f"{fmt_num(state.get('checkpoint'))} of {fmt_num(state.get('route_points'))}",
+        "next": (f"{fmt_num(state.get('checkpoint_distance_m'), 1)} m at "
+                 f"{fmt_num(state.get('checkpoint_bearing_deg'), 1)}°, "
+                 f"turn {fmt_num(state.get('checkpoint_heading_error_deg'), 1)}°"),
+        "cross-track": f"{fmt_num(state.get('cross_track_m'), 2)} m",
+        "wheel": f"{fmt_num(state.get('wheel_cmd_deg'), 1)}°",
+    }

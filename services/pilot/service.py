@@ -1,0 +1,416 @@
+"""viena-pilot: follows a route of checkpoints by steering the car; the person drives the speed.
+
+    viena-pilot [--controller pure_pursuit|stanley] [--setpoint-rate-hz 40] ...
+
+Keys (relative to viena/<car>/; payloads JSON text or msgpack, replies in the question's):
+
+- `pilot/route`, query or put: a route (docs/pilot.md#routes); a query without payload
+  asks for the current one. Reply `{"status": "accepted", "route": <GeoJSON>, "mode"}` or
+  `{"status": "rejected", "reason": ...}`.
+- `pilot/cmd`, query or put: `{"cmd": "start"}` / `{"cmd": "stop"}` (or the bare word).
+  Reply `{"status", "reason", "mode"}`.
+- `pilot/state`, 20 Hz: `viena.pilot.state/1` (model/state.py).
+- `pilot/path`: `viena.pilot.path/1`, the route held, when taken and every 5 s (for
+  recordings, plots and maps).
+
+One control thread does everything in order at the setpoint rate: takes the commands the
+zenoh callbacks queued, reads the newest estimator state, asks the model (model/pilot.py)
+for the wheel angle, and streams it to the steering with its own lease (SteeringClient).
+When the model says stop (or the steering refuses a setpoint), no more setpoints go out
+and the lease is given back; the steering's watchdog is the last line if this process dies.
+An estop put on steering/estop stops the pilot too; it then needs a new start.
+"""
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass
+
+import msgpack
+import zenoh
+
+from viena.common.errors import ConfigError, InputError, PayloadError
+from viena.common.log import Throttled
+from viena.common.payload import parse_payload, reply_bytes
+from viena.common.schema import unpack
+from viena.common.service import Service, run_service
+from viena.common.session import zenoh_config
+from viena.common.settings import part, setting
+from viena.services.pilot.model.estimate import estimate_of
+from viena.services.pilot.model.pilot import Pilot, PilotSettings
+from viena.services.pilot.model.route import RouteError, parse_route
+from viena.services.pilot.model.safety import SafetySettings
+from viena.services.pilot.model.state import PATH, STATE, path_sample
+from viena.services.pilot.model.tracking import TrackingSettings
+from viena.services.steering.client import ConflictingReplies, SteeringClient
+from viena.services.steering.model.state import STATE as STEERING_STATE
+
+#: who this process is on a secured car (a certificate of role `autopilot`, docs/pilot.md)
+IDENTITY = "autopilot"
+ACCEPTED, REJECTED = "accepted", "rejected"
+_STEERING = STEERING_STATE.reader("t", "armed", "owner", "trip")
+#: steering states arriving this soon after the arm may predate it
+ARM_MARGIN_S = 0.1
+#: how often the route held is published again on pilot/path
+PATH_PERIOD_S = 5.0
+
+
+@dataclass(frozen=True)
+class PilotServiceSettings:
+    """[pilot]: rates, keys, and the model's settings."""
+    setpoint_rate_hz: float = setting(40.0, "setpoints per second while following (20-50)")
+    state_rate_hz: float = setting(20.0, "pilot/state samples per second")
+    estimate_key: str = setting("estimator/state", "the estimator's state, key relative to `viena/<car>/`",
+                                metavar="KEYEXPR")
+    steering_timeout_s: float = setting(0.25, "longest wait for the steering's answer to a setpoint")
+    arm_timeout_s: float = setting(3.0, "longest wait for the steering's answer to arm or disarm")
+    steering_silence_s: float = setting(0.5, "setpoints unanswered, or no steering state, this long: stop "
+                                             "(the steering's watchdog)")
+    setpoints_as: str = setting("put", "put: cheap, refusals seen in steering/state; query: each one answered",
+                                choices=("put", "query"))
+    tracking: TrackingSettings = part(TrackingSettings, "turning the route into a wheel angle (model/tracking.py)")
+    safety: SafetySettings = part(SafetySettings, "when to refuse or stop (model/safety.py)")
+
+
+class PilotService(Service):
+    """Follows a route with pure pursuit (or Stanley), steering through its own lease."""
+
+    name = "pilot"
+    settings_class = PilotServiceSettings
+
+    def __init__(self, args):
+        super().__init__(args)
+        # not `pilot`: that identity is a person's (viena keys init); this is the program
+        self.zenoh_config = zenoh_config(args, self.toml, identity=IDENTITY)
+        self._refusals = Throttled(self.log, "refused")
+
+    def start(self) -> None:
+        s = self.settings
+        if not 20.0 <= s.setpoint_rate_hz <= 50.0:
+            raise ConfigError(f"[pilot] setpoint_rate_hz must be within 20..50, got {s.setpoint_rate_hz:g}")
+        try:
+            self.pilot = Pilot(PilotSettings(tracking=s.tracking, safety=s.safety))
+        except ValueError as exc:
+            raise ConfigError(f"[pilot]: {exc}") from None
+        self.client = SteeringClient(self.session, self.keys.car, timeout_s=s.arm_timeout_s)
+        self._events: queue.Queue = queue.Queue(maxsize=100)
+        self._estimate_lock = threading.Lock()
+        self._estimate_raw: bytes | None = None
+        self._unanswered_since: float | None = None
+        self._estimate_arrived = self._used_arrived = 0.0
+        self._latencies_s: list[float] = []          # estimate in -> setpoint answered
+        self._state_pub = self.publisher(self.keys.key("pilot", "state"), STATE)
+        self._path_pub = self.publisher(self.keys.key("pilot", "path"), PATH)
+        self._path_due = math.inf                     # when to publish the route again
+        for name in ("route", "cmd"):
+            key = self.keys.key("pilot", name)
+            self.declare_queryable(key, self._on_query(name, key))
+            self.declare_subscriber(key, self._on_put(name))
+        self.declare_subscriber(self.keys.key(s.estimate_key), self._on_estimate)
+        self._steering: tuple | None = None           # (received monotonic, t, armed, owner, trip)
+        self._owner: str | None = None
+        self._armed_at = 0.0                           # monotonic, when the arm was granted
+        if s.setpoints_as == "put":
+            self._setpoint_pub = self.session.declare_publisher(self.keys.key("steering", "setpoint"))
+            self._declared.append(self._setpoint_pub)
+            self.declare_subscriber(self.keys.key("steering", "state"), self._on_steering)
+        self.declare_subscriber(self.keys.key("steering", "estop"), lambda _s: self._queue(("estop", None, None)))
+        self._thread = threading.Thread(target=self._run, name="pilot", daemon=True)
+        self._thread.start()
+        self.log.info("pilot ready (%s), idle: send a route on %s", s.tracking.controller,
+                      self.keys.key("pilot", "route"))
+
+    def stop(self) -> None:
+        self.stopping.set()
+        thread = getattr(self, "_thread", None)
+        if thread is not None:
+            thread.join(timeout=1.5)
+
+    # -- zenoh callbacks: never block ---------------------------------------------------------------
+    def _on_estimate(self, sample: zenoh.Sample) -> None:
+        with self._estimate_lock:
+            self._estimate_raw = sample.payload.to_bytes()
+            self._estimate_arrived = time.perf_counter()
+
+    def _on_steering(self, sample: zenoh.Sample) -> None:
+        try:
+            t, armed, owner, trip = _STEERING(unpack(sample.payload.to_bytes(), "steering state"))
+        except InputError:
+            self.health.error("bad_steering_state")
+            return
+        self._steering = (time.monotonic(), t, armed, owner, trip)
+
+    def _on_query(self, kind: str, own_key: str):
+        def on_query(query: zenoh.Query) -> None:
+            data = query.payload.to_bytes() if query.payload is not None else b""
+            encoding = str(query.encoding) if query.encoding is not None else None
+            if str(query.key_expr) != own_key:            # a wildcard query: never a command
+                self._reply(query, {"status": "description", "key": own_key, "usage": USAGE[kind]},
+                            encoding, data, own_key)
+                return
+            self._queue((kind, (data, encoding), query))
+        return on_query
+
+    def _on_put(self, kind: str):
+        def on_put(sample: zenoh.Sample) -> None:
+            self._queue((kind, (sample.payload.to_bytes(), str(sample.encoding)), None))
+        return on_put
+
+    def _queue(self, event) -> None:
+        try:
+            self._events.put_nowait(event)
+        except queue.Full:
+            self.health.error("queue_full")
+
+    @staticmethod
+    def _reply(query, answer: dict, encoding: str | None, data: bytes, key=None) -> None:
+        payload, reply_encoding = reply_bytes(answer, encoding, data)
+        query.reply(key or query.key_expr, payload, encoding=zenoh.Encoding(reply_encoding))
+
+    # -- the control thread ---------------------------------------------------------------------------
+    def _run(self) -> None:
+        period_s = 1.0 / self.settings.setpoint_rate_hz
+        state_period_s = 1.0 / self.settings.state_rate_hz
+        next_tick = next_state = time.monotonic()
+        seq = 0
+        try:
+            while not self.stopping.is_set():
+                try:
+                    self._step()
+                except Exception:                        # noqa: BLE001 - never leave the wheel to chance
+                    self.health.error("internal")
+                    self.log.exception("pilot step failed: stopping")
+                    self.pilot.stop("internal error (see the pilot's log)")
+                    self._give_back_lease()
+                now = time.monotonic()
+                if now >= next_state:
+                    next_state = max(next_state + state_period_s, now)
+                    self._publish_state(seq)
+                    seq += 1
+                if now >= self._path_due and self.pilot.route is not None:
+                    self._path_due = now + PATH_PERIOD_S
+                    self._path_pub.put(path_sample(self.pilot.route, time.time_ns()))
+                next_tick += period_s
+                self.stopping.wait(max(0.0, next_tick - time.monotonic()))
+                if time.monotonic() - next_tick > period_s:     # fell behind: do not burst
+                    next_tick = time.monotonic()
+        finally:
+            self.pilot.stop("pilot shut down")
+            self.client.timeout_s = min(self.settings.arm_timeout_s, 0.5)   # within the 2 s stop
+            self._give_back_lease()
+
+    def _step(self) -> None:
+        self._read_estimate()
+        while True:
+            try:
+                kind, payload, query = self._events.get_nowait()
+            except queue.Empty:
+                break
+            self._handle(kind, payload, query)
+        before = self.pilot.mode
+        angle_rad = self.pilot.tick(time.time_ns())
+        if angle_rad is None:
+            if self.pilot.mode != before:
+                self.log.info("%s: %s", self.pilot.mode, self.pilot.reason)
+            self._give_back_lease()
+            return
+        if self.client.lease is None and not self._arm():
+            return
+        self._setpoint(math.degrees(angle_rad))
+
+    def _read_estimate(self) -> None:
+        with self._estimate_lock:
+            raw, self._estimate_raw = self._estimate_raw, None
+            arrived = self._estimate_arrived
+        if raw is None:
+            return
+        self._used_arrived = arrived
+        try:
+            self.pilot.on_estimate(estimate_of(unpack(raw, "estimator state")))
+            self.health.count("estimate")
+        except InputError as exc:
+            self.health.error("bad_estimate")
+            self._refusals.log("estimate", f"estimator state not used: {exc}")
+
+    def _arm(self) -> bool:
+        try:
+            reply = self.client.arm()
+        except ConflictingReplies as exc:
+            return self._conflict(exc)
+        if reply.get("status") != ACCEPTED or not self.client.lease:
+            self.pilot.stop(f"steering refused to arm: {reply.get('reason', reply.get('status'))}")
+            self.log.warning("stopped: %s", self.pilot.reason)
+            return False
+        self._owner, self._armed_at = reply.get("owner"), time.monotonic()
+        self.health.count("armed")
+        self.log.info("armed: following the route")
+        return True
+
+    def _setpoint(self, angle_deg: float) -> None:
+        if self.settings.setpoints_as == "put":
+            self._setpoint_put(angle_deg)
+            return
+        self.client.timeout_s = self.settings.steering_timeout_s
+        try:
+            reply = self.client.setpoint(angle_deg)
+        except ConflictingReplies as exc:
+            self._conflict(exc)
+            return
+        finally:
+            self.client.timeout_s = self.settings.arm_timeout_s
+        self.health.count("setpoint")
+        self._note_latency(time.perf_counter() - self._used_arrived)
+        now = time.monotonic()
+        if str(reply.get("reason", "")).startswith("no answer"):
+            # a lost answer is not a refusal: keep streaming, until the steering's own
+            # watchdog would have given up on us anyway
+            self.health.error("setpoint_unanswered")
+            self._unanswered_since = self._unanswered_since or now
+            if now - self._unanswered_since < self.settings.steering_silence_s:
+                return
+        else:
+            self._unanswered_since = None
+        if reply.get("status") == REJECTED:
+            self.pilot.stop(f"steering refused a setpoint: {reply.get('reason')}")
+            self.log.warning("stopped: %s", self.pilot.reason)
+            self._give_back_lease()
+
+    def _setpoint_put(self, angle_deg: float) -> None:
+        """Put the setpoint; the steering's state says whether it still steers for us."""
+        steering = self._steering
+        now = time.monotonic()
+        why = None
+        if steering is None or now - steering[0] > self.settings.steering_silence_s:
+            self._unanswered_since = self._unanswered_since or now
+            if now - self._unanswered_since >= self.settings.steering_silence_s:
+                why = "no steering state: is viena-steering running?"
+        else:
+            self._unanswered_since = None
+            received, _, armed, owner, trip = steering
+            # judged by when it arrived here (not its stamp: the steering may run on another
+            # machine's clock), with a margin for a state already on its way at the arm
+            if received > self._armed_at + ARM_MARGIN_S and not (armed and owner == self._owner):
+                why = f"steering stopped: {trip or 'disarmed'}"
+        if why is not None:
+            self.pilot.stop(why)
+            self.log.warning("stopped: %s", why)
+            self.client.lease = None if why.startswith("steering stopped") else self.client.lease
+            self._give_back_lease()
+            return
+        self._setpoint_pub.put(msgpack.packb({"angle_deg": angle_deg, "lease": self.client.lease}),
+                               encoding=zenoh.Encoding("application/msgpack"))
+        self.health.count("setpoint")
+        self._note_latency(time.perf_counter() - self._used_arrived)
+
+    def _note_latency(self, latency_s: float) -> None:
+        """From the estimate's arrival to the steering's answer to the setpoint made from
+        it, p50 and p99 over the last 500 setpoints, in health."""
+        self._latencies_s.append(latency_s)
+        if len(self._latencies_s) >= 500:
+            ordered = sorted(self._latencies_s)
+            self.health.set("estimate_to_setpoint_ms", {"p50": round(ordered[249] * 1e3, 2),
+                                                        "p99": round(ordered[494] * 1e3, 2)})
+            self._latencies_s.clear()
+
+    def _give_back_lease(self) -> None:
+        """No more setpoints, then disarm (a lease the steering already dropped is simply
+        forgotten: its answer says so)."""
+        if self.client.lease is None:
+            return
+        try:
+            reply = self.client.disarm()
+        except ConflictingReplies as exc:
+            self._conflict(exc)
+            return
+        self.log.info("disarmed: %s", reply.get("status"))
+
+    def _conflict(self, exc: ConflictingReplies) -> bool:
+        """Someone else answers the steering keys: stop, estop, and trust nothing."""
+        self.pilot.stop(f"steering answered by more than one process: {exc}")
+        self.log.error("%s: estop", exc)
+        self.client.lease, self.client.replier = None, None
+        self.session.put(self.keys.key("steering", "estop"), b"{}")
+        return False
+
+    # -- commands --------------------------------------------------------------------------------------
+    def _handle(self, kind: str, payload, query) -> None:
+        if kind == "estop":
+            if self.pilot.mode == "following":
+                self.pilot.stop("estop")
+                self.log.warning("estop: stopped")
+            return
+        data, encoding = payload
+        answer = self._route(data, encoding) if kind == "route" else self._command(data, encoding)
+        if answer["status"] == REJECTED:
+            self.health.error(f"{kind}_rejected")
+            self._refusals.log(kind, f"{kind} refused: {answer['reason']}")
+        if query is not None:
+            self._reply(query, answer, encoding, data)
+
+    def _route(self, data: bytes, encoding: str | None) -> dict:
+        if not data:
+            route = self.pilot.route
+            if route is None:
+                return {"status": REJECTED, "reason": "no route yet"}
+            return {"status": ACCEPTED, "route": route.to_geojson(), "mode": self.pilot.mode}
+        try:
+            route = parse_route(data, encoding)
+            self.pilot.set_route(route)
+        except RouteError as exc:
+            return {"status": REJECTED, "reason": str(exc)}
+        self.health.count("route")
+        self._path_due = 0.0                          # publish it now
+        self.log.info("route: %d checkpoints, %.0f m (%s)", len(route), route.length_m, route.form)
+        return {"status": ACCEPTED, "route": route.to_geojson(), "mode": self.pilot.mode}
+
+    def _command(self, data: bytes, encoding: str | None) -> dict:
+        try:
+            cmd = command_of(data, encoding)
+        except PayloadError as exc:
+            return {"status": REJECTED, "reason": str(exc), "mode": self.pilot.mode}
+        if cmd == "start":
+            why = self.pilot.start(time.time_ns())
+            if why is not None:
+                return {"status": REJECTED, "reason": why, "mode": self.pilot.mode}
+            self.log.info("start: following")
+            return {"status": ACCEPTED, "mode": self.pilot.mode}
+        self.pilot.stop("stop command")
+        self._give_back_lease()
+        return {"status": ACCEPTED, "mode": self.pilot.mode}
+
+    def _publish_state(self, seq: int) -> None:
+        state = self.pilot.snapshot(time.time_ns(), seq, self.client.lease is not None)
+        if self._state_pub.put(state):
+            self.health.count("state")
+            self.health.mark_sample()
+        self.health.set("mode", state["mode"])
+        self.health.set("reason", state["reason"])
+
+
+USAGE = {
+    "route": "a route as a query or put (GeoJSON, point list, Titans checkpoints, CSV); "
+             "a query without payload: the current route",
+    "cmd": '{"cmd": "start"} or {"cmd": "stop"}, as a query or a put',
+}
+
+
+def command_of(data: bytes, encoding: str | None = None) -> str:
+    """`start` or `stop` from {"cmd": ..} (JSON or msgpack) or the bare word; PayloadError else."""
+    word = bytes(data).strip().strip(b'"').decode("utf-8", "replace").lower()
+    if word in ("start", "stop"):
+        return word
+    obj = parse_payload(data, encoding)
+    cmd = obj.get("cmd")
+    if set(obj) != {"cmd"} or cmd not in ("start", "stop"):
+        raise PayloadError('expected {"cmd": "start"} or {"cmd": "stop"}')
+    return cmd
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_service(PilotService, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

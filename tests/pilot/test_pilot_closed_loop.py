@@ -1,0 +1,99 @@
+"""Closed loop on the simulated car: the estimator in the loop, never the truth. The sim
+profile runs (twins, device services, steering, estimator); viena-pilot follows the
+40 m x 24 m loop from where the car is, while the simulated person drives the speed.
+
+The truth's cross-track error is the pilot's tracking error plus the estimator's own
+position error, which the pilot cannot see: on the sim's single-point GNSS (sigma ~1.8 m)
+the estimate is off by about 1 m, so the bound checked is 0.3 m RMS beyond the estimate's
+own RMS error, measured at the same time (docs/pilot.md#accuracy)."""
+from __future__ import annotations
+
+import threading
+
+import pytest
+from vienatest import open_session, sim_profile_up, wait_for_line, wait_for_queryable
+
+from benchmarks.faults import supervisor
+from benchmarks.pilot import LiveLoop, rms
+
+pytestmark = pytest.mark.slow  # the whole sim profile, minutes
+
+
+@pytest.fixture(scope="module")
+def sim_profile(tmp_path_factory):
+    with sim_profile_up(tmp_path_factory.mktemp("run")) as up:
+        yield up
+
+
+@pytest.fixture
+def live(sim_profile, procs):
+    env, router = sim_profile
+    # The 200 ms staleness stop is checked on a simulated clock (test_pilot_core.py) and
+    # with a silent estimator (test_pilot_service.py); here a loaded 2-core machine running
+    # the whole car can hold a sample back longer than that, so the bound is looser.
+    pilot = procs.python("-m", "viena.services.pilot.service", "--connect", router,
+                         "--max-estimate-age-s", "1.0", "--log-level", "INFO", env=env)
+    wait_for_line(pilot.stderr, "pilot ready", 30.0)
+    with open_session(router) as session:
+        assert wait_for_queryable(session, "viena/elettra/pilot/cmd")
+        loop = LiveLoop(session)
+        yield loop, env
+        loop.close()
+
+
+#: the steering's stops for its drive's silence (services/steering/model/core.py)
+DRIVE_TRIPS = ("no feedback from the drive", "drive heartbeat lost")
+
+
+def drive_unless_the_steering_trips(loop: LiveLoop, **kw):
+    """A drive; once more if the steering's own watchdog stopped the first (on a loaded
+    2-core machine its drive feedback can miss its 200 ms deadline: a stop the pilot must
+    not override by arming again itself, and not the pilot's failure)."""
+    drive = loop.drive(**kw)
+    if drive.mode == "stopped" and any(trip in drive.reason for trip in DRIVE_TRIPS):
+        drive = loop.drive(**kw)
+    return drive
+
+
+def test_the_pilot_drives_the_sim_car_round_the_loop(live):
+    loop, _ = live
+    drive = drive_unless_the_steering_trips(loop)
+    assert (drive.mode, drive.reason) == ("finished", "route end"), drive.figures()
+    assert drive.checkpoint_miss_m.max() <= 2.0, drive.figures()
+    estimate_rms = rms(drive.estimate_error_m)
+    assert rms(drive.cross_track_m) <= 0.3 + estimate_rms, drive.figures()
+    assert abs(drive.cross_track_m).max() <= 1.0 + drive.estimate_error_m.max(), drive.figures()
+
+
+def test_a_gnss_cut_is_followed_on_dead_reckoning_or_stopped_for_its_sigma(live):
+    loop, env = live
+    cut: dict = {}
+
+    def gnss_off_for_5_s() -> None:
+        # through supervisord's XML-RPC, not `viena stop`: starting two more Python
+        # processes on a busy 2-core machine could starve the pilot itself
+        programs = supervisor(env)
+        for unit in ("gnss0", "gnss1"):
+            programs.stopProcess(unit)
+        cut["off"] = True
+        threading.Event().wait(5.0)
+        for unit in ("gnss0", "gnss1"):
+            programs.startProcess(unit)
+        cut["on"] = True
+
+    def during(t_s: float) -> None:
+        if t_s > 5.0 and "thread" not in cut:
+            cut["thread"] = threading.Thread(target=gnss_off_for_5_s, daemon=True)
+            cut["thread"].start()
+
+    drive = loop.drive(during=during)
+    assert "thread" in cut, (drive.mode, drive.reason, drive.seconds)
+    cut["thread"].join(timeout=60)
+    assert cut.get("off") and cut.get("on")
+    if drive.mode == "stopped":
+        # sigma grew past the setting, or the estimator reset itself when the fixes came
+        # back far from its dead reckoning: either way the pilot stopped and said why
+        assert drive.reason.startswith(("estimate too uncertain: sigma", "estimate not valid")), drive.reason
+    else:
+        assert (drive.mode, drive.reason) == ("finished", "route end")
+        assert abs(drive.cross_track_m).max() <= 1.0 + drive.estimate_error_m.max(), drive.figures()
