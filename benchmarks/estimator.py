@@ -165,8 +165,9 @@ OUTAGE_SPEEDS_MPS = (5.0, 14.0)
 OUTAGE_RATES_HZ = (4.0, 1.0)
 
 
-def outage_errors(drive: Drive, settings: dict) -> list[tuple]:
-    """(drift m, end error m, end NEES) at the end of each of the drive's outages."""
+def outage_errors(drive: Drive, settings: dict) -> tuple[list[tuple], int]:
+    """(drift m, end error m, end NEES) at the end of each of the drive's outages, and the
+    estimator's resets over the drive."""
     samples = list(DriveSamples(drive))
     r = score(_without_mag(samples), settings, every=1)
     e, t, nees = r["pos"][:, :2], r["t_s"], r["nees"]
@@ -175,11 +176,11 @@ def outage_errors(drive: Drive, settings: dict) -> list[tuple]:
         before, end = np.flatnonzero(t < a)[-1], np.flatnonzero(t < b)[-1]
         out.append((float(np.linalg.norm(e[end] - e[before])), float(np.linalg.norm(e[end])),
                     float(nees[end])))
-    return out
+    return out, r["final"]["counts"]["resets"]
 
 
 #: the roads: the twins as they are (a flat road, an IMU calibrated perfectly), and hills
-#: of +-5 % grade with a residual accelerometer bias of 0.05 m/s^2 per axis (a seed's own)
+#: of +-5 % grade with a residual accelerometer bias of 0.05 m/s^2 per axis (each random seed its own)
 OUTAGE_ROADS = ("flat", "hills + bias")
 
 
@@ -198,16 +199,18 @@ def bench_outages(seeds=range(1, 11), duration_s: float = 180.0, roads=OUTAGE_RO
     for road in roads:
         for speed in OUTAGE_SPEEDS_MPS:
             for rate in OUTAGE_RATES_HZ:
-                ends = []
+                ends, resets = [], 0
                 for seed in seeds:
                     drive = at_speed(speed, duration_s=duration_s, seed=seed, gnss_rate_hz=rate,
                                      outages=outages, **_road(road, seed))
-                    ends += outage_errors(drive, _settings(drive, ORIGIN))
+                    errors, n = outage_errors(drive, _settings(drive, ORIGIN))
+                    ends += errors
+                    resets += n
                 drift, end, nees = (np.array(v) for v in zip(*ends))
                 rows.append((f"{road}, {speed:g} m/s, {rate:g} Hz", len(drift),
                              float(np.percentile(drift, 95)), float(drift.max()),
                              int(np.sum(drift > 5.0)), float(np.percentile(end, 95)),
-                             100.0 * float(np.mean(nees <= CHI2_2D_95))))
+                             100.0 * float(np.mean(nees <= CHI2_2D_95)), resets))
     return rows
 
 
@@ -387,10 +390,11 @@ def main(argv: list[str] | None = None) -> int:
         _print_rows(f"outages: 10 s without GNSS every 30 s from 20 s after pulling away ({len(seeds)} seeds; "
                     "goal: drift p95 <= 3 m, none over 5 m)",
                     f"{'':30s} {'outages':>8s} {'drift p95':>10s} {'worst':>7s} {'> 5 m':>6s} "
-                    f"{'end err p95':>12s} {'in 95 % ellipse':>16s}",
+                    f"{'end err p95':>12s} {'in 95 % ellipse':>16s} {'resets':>7s}",
                     bench_outages(seeds=seeds),
-                    lambda label, n, p95, worst, over, end95, inside:
-                        f"{label:30s} {n:8d} {p95:9.2f}m {worst:6.2f}m {over:6d} {end95:11.2f}m {inside:15.0f}%")
+                    lambda label, n, p95, worst, over, end95, inside, resets:
+                        f"{label:30s} {n:8d} {p95:9.2f}m {worst:6.2f}m {over:6d} {end95:11.2f}m "
+                        f"{inside:15.0f}% {resets:7d}")
         print("drift: how far the estimate moved off the truth during the outage; end err: the error at "
               "its end, the receiver's own error before it included")
     if "timing" in parts:

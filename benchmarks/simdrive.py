@@ -4,11 +4,12 @@ For closed-loop tests and the benchmark, without processes or sockets: `SimCar` 
 kinematic bicycle model the whole simulation uses) steps once per IMU period, and each
 sensor turns its truth into a sample dict in the agreed schema. Two sets of sensors:
 
-- "twins" (default): the device twins' own models -- `RazorBoard` (seed §5.5 sensor
-  models with the parked recordings' noise, through the IMU service's calibration and
-  sample builder) and the NovAtel `TruthSolver` (seed table 5.2 error sources as
-  Gauss-Markov processes scaled to 1.8 m CEP, satellites and outages, through the GNSS
-  service's BESTXYZ-to-fix code). What the car's processes see, minus the bytes.
+- "twins" (default): the device twins' own models -- `RazorBoard` (the sensor models of
+  docs/sensors.md#imu-sensor-models with the parked recordings' noise, through the IMU
+  service's calibration and sample builder) and the NovAtel `TruthSolver` (the error
+  sources of docs/sensors.md#gnss-error-budget as Gauss-Markov processes scaled to 1.8 m
+  CEP, satellites and outages, through the GNSS service's BESTXYZ-to-fix code). What the
+  car's processes see, minus the bytes.
 - "white": independent white errors of the same sizes (1.5 m per axis, 0.05 m/s, the
   Razor's noise and quantisation). No filter can remove a slowly drifting GNSS error
   without another reference, so this set shows what the filter does remove.
@@ -267,7 +268,8 @@ class TwinSensors:
 
 
 class WhiteSensors:
-    """White errors of the seed's sizes, independent from sample to sample."""
+    """White errors of the twins' sizes (docs/sensors.md#gnss-error-budget,
+    docs/sensors.md#imu-sensor-models), independent from sample to sample."""
 
     accel_sigma = 0.006 * G
     accel_bias_sigma = 0.003 * G

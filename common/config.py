@@ -111,7 +111,7 @@ def load_zenoh_config(path: str | Path | None = None, *, mode: str | None = None
             conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
         if listen:
             conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
-        # design §7: no multicast anywhere, whatever a file says
+        # no multicast anywhere, whatever a file says (docs/placement.md#zenoh-topology)
         conf.insert_json5(MULTICAST_OFF, "false")
     except Exception as exc:
         raise ConfigError(f"{path or 'zenoh config'}: {exc}") from None

@@ -9,7 +9,7 @@ everywhere:
 - settings: the dataclass's defaults, overlaid with the TOML file's `[<name>]` table, then
   its `[<name>.<unit>]` sub-table, then the flags; a bad file or setting stops the process
   at start with one line naming both;
-- a liveliness token (discovery only, design §3), a health sample once a second; a token
+- a liveliness token (discovery only, docs/dataflow.md#health-and-liveliness), a health sample once a second; a token
   already alive under the same name at start means the same unit runs elsewhere, and the
   process refuses to be a second one, in one line;
 - SIGTERM/SIGINT: stop within 2 s, with every publisher, subscriber, queryable and the

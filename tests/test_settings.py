@@ -32,7 +32,7 @@ def read(cls, toml: dict, *flags: str, unit: str | None = None):
 
 
 def test_every_service_is_found():
-    assert set(SERVICES) == {"estimator", "gnss", "imu", "sim", "steering"}
+    assert set(SERVICES) == {"estimator", "gnss", "imu", "pilot", "sim", "steering"}
 
 
 def test_the_service_readmes_show_the_settings_as_declared():
@@ -193,7 +193,9 @@ def test_viena_settings_prints_a_table_and_refuses_an_unknown_service(capsys):
     assert settings_main(["imu", "--toml"]) == 0
     assert capsys.readouterr().out.startswith("[imu]\n# port = \"\"")
     assert settings_main(["gps"]) == 2
-    assert "no service 'gps' (have estimator, gnss, imu, sim, steering)" in capsys.readouterr().err
+    have = sorted(services())                      # every service (estimator, gnss, imu, sim, steering, ...)
+    assert {"estimator", "gnss", "imu", "pilot", "sim", "steering"} <= set(have)
+    assert f"no service 'gps' (have {', '.join(have)})" in capsys.readouterr().err
 
 
 def test_a_service_without_settings_reads_none():

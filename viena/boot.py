@@ -145,8 +145,12 @@ def _install(path: Path, text: str, args: argparse.Namespace, systemd: bool) -> 
     print(f"{'replaced' if replaced else 'wrote'} {path}")
     name = path.name
     if not systemd:
-        print(f"(left systemd alone: `sudo cp {path} {SYSTEM_DIR}/ && sudo systemctl daemon-reload "
-              f"&& sudo systemctl enable --now {name}`)")
+        if args.user:
+            print(f"(left systemd alone: `cp {path} {user_dir()}/ && systemctl --user daemon-reload "
+                  f"&& systemctl --user enable --now {name}`)")
+        else:
+            print(f"(left systemd alone: `sudo cp {path} {SYSTEM_DIR}/ && sudo systemctl daemon-reload "
+                  f"&& sudo systemctl enable --now {name}`)")
         return 0
     steps = [["daemon-reload"]]
     if not args.no_enable:
@@ -186,10 +190,10 @@ def _scope(user: bool) -> str:
 def _systemctl(steps: list[list[str]], user: bool) -> None:
     tool = shutil.which("systemctl")
     for step in steps:
-        cmd = [tool or "systemctl", *(["--user"] if user else []), *step]
+        cmd = ["systemctl", *(["--user"] if user else []), *step]
         if tool is None:
             raise Fail(f"no systemctl on this machine: run `{shlex.join(cmd)}` where systemd runs")
-        done = subprocess.run(cmd, capture_output=True, text=True)
+        done = subprocess.run([tool, *cmd[1:]], capture_output=True, text=True)
         if done.returncode != 0:
             why = (done.stderr or done.stdout).strip().splitlines()
             raise Fail(f"`{shlex.join(cmd)}` failed: {why[-1] if why else f'status {done.returncode}'}")

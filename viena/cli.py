@@ -8,6 +8,9 @@
     viena list | hz KEY | sub KEY     what the car publishes, how fast, and what
     viena monitor | record | replay   watch, record and play back the car
     viena info | export | plot FILE   look into a recording
+    viena foxglove                    the car live in Foxglove (ws://localhost:8765)
+    viena route send|show|record      the route the pilot follows
+    viena pilot start|stop|status     the pilot (viena-pilot) that steers along it
     viena keys ...                    the car's certificates
     viena router                      a zenoh router (for machines without zenohd)
     viena settings [SERVICE]          every setting of a service: type, default, meaning
@@ -26,7 +29,8 @@ import sys
 from viena import compose
 from viena.common.session import add_version_flag
 
-BENCHES = ["sim", "gnss", "imu", "steering", "estimator", "laptop", "security"]
+BENCHES = ["sim", "gnss", "imu", "steering", "estimator", "laptop", "security", "faults", "fleet",
+           "foxglove", "pilot"]
 
 #: commands that live in their own module, each with build_parser(parser) and run(args);
 #: a module that is not there (a tool not written yet) is left out of the command list
@@ -40,8 +44,9 @@ TOOLS = {
     "record": ("viena.record", "record samples into an MCAP file"),
     "replay": ("viena.replay", "publish a recording back into the dataflow"),
     "info": ("viena.info", "what a recording holds: duration, keys, counts, rates"),
-    "export": ("viena.export", "an MCAP recording as CSV or JSON"),
+    "export": ("viena.export", "an MCAP recording as CSV, JSON or a file Foxglove opens"),
     "plot": ("viena.plot", "a recorded drive as a PNG"),
+    "foxglove": ("viena.foxglove", "the car live in Foxglove or Lichtblick (WebSocket server)"),
     "keys": ("viena.keys", "the car's certificates: init, issue, list, zenoh-config"),
     "router": ("viena.router", "run a zenoh router"),
     "settings": ("viena.settings", "every setting of a service: type, default, meaning"),
@@ -131,6 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
                             formatter_class=argparse.RawDescriptionHelpFormatter)
         module.build_parser(p)
         p.set_defaults(func=module.run)
+    from viena import pilot_cli  # two commands with subcommands: route, pilot
+    pilot_cli.add_commands(cmds)
 
     p = cmds.add_parser("bench", help="print benchmark figures")
     p.add_argument("names", nargs="*", metavar="NAME", help=f"any of {', '.join(BENCHES)} (default all)")

@@ -144,7 +144,8 @@ def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = 
     if detach:
         started = time.monotonic()
         said_before = programs.log_sizes(profile, programs_in(conf))
-        subprocess.run(cmd, env=_supervisor_env(env), check=True)
+        if subprocess.run(cmd, env=_supervisor_env(env)).returncode != 0:     # it said why, above
+            raise ComposeError(f"supervisord did not start profile {profile} ({conf})")
         status = wait_running(profile, said_before=said_before)
         if status == 0:
             print(f"viena: every program of {profile} is up ({time.monotonic() - started:.1f} s); "

@@ -6,7 +6,7 @@
     samples   48,213 on 9 keys
 
     KEY                              SCHEMA                  COUNT   RATE Hz   SIZE
-    viena/elettra/estimator/state    viena.estimator.state/1 31240   100.0     2.9 MB
+    viena/elettra/estimator/state    viena.estimator.state/2 31240   100.0     2.9 MB
 
 then whatever could not be read (a recording cut short or damaged is read as far as it
 goes; the exit status is then 1). Rates are counts over each key's own span of log times.

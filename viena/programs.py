@@ -24,8 +24,11 @@ from viena.runstate import run_dir
 
 #: how long a program must stay in one run after its first word (and RUNNING)
 SETTLE_S = 2.0
-#: ... or after RUNNING, if it writes nothing to its log
-QUIET_S = 10.0
+#: ... or after RUNNING, if it writes nothing to its log. Every program of viena's profiles
+#: speaks first, so this is for others; it is long because a program still importing its
+#: modules says nothing yet: on a busy 2-core machine the estimator took 14.7 s to reach
+#: its bad setting and exit (a 10 s wait had called it up)
+QUIET_S = 30.0
 SETTLE_TIMEOUT_S = 60.0
 LOG_LINES = 8
 FOLLOW_PERIOD_S = 0.2

@@ -19,7 +19,7 @@ from viena.common.log import setup_logging
 from viena.common.payload import is_json_text, to_jsonable
 from viena.common.schema import schema_of, unpack
 from viena.common.session import add_common_arguments, stop_on_signals
-from viena.tool import Connection, SilenceWarning, guarded, key_expressions
+from viena.tool import CONNECT_TIMEOUT_S, Connection, SilenceWarning, guarded, key_expressions
 
 MISSING = object()
 
@@ -72,7 +72,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("-n", "--count", type=int, default=0, help="exit after N samples")
     parser.add_argument("--timeout", type=float, default=0.0, metavar="S",
                         help="exit after this many seconds, connecting included: a router not reached "
-                             "by then is an error (default 0: run until Ctrl-C)")
+                             f"by then is an error (default 0: run until Ctrl-C, having given up "
+                             f"if the router cannot be reached in {CONNECT_TIMEOUT_S:g} s)")
     add_common_arguments(parser)
     return parser
 
@@ -86,7 +87,7 @@ def _run(args: argparse.Namespace) -> int:
     link = Connection(args)
     [keyexpr] = key_expressions([args.keyexpr or link.keys.all])
     stop = stop_on_signals()
-    session = link.open(stop, args.timeout)
+    session = link.open(stop, args.timeout or CONNECT_TIMEOUT_S)
     if session is None:
         return 0
     lines: queue.Queue = queue.Queue()

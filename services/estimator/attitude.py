@@ -1,9 +1,10 @@
 """The car's attitude: Madgwick's filter, and who corrects its tilt when.
 
-- alignment: at start (and after a long gap, or when another IMU takes over) the specific
-  force, rate and field are averaged over `align_s` while the car stands; roll and pitch
-  come from the mean specific force, yaw from the field if it is plausible; a still
-  gyro's mean reading is its bias;
+- alignment: at start (and after a long gap, when another IMU takes over, or when GNSS
+  has disagreed for long) the specific force, rate and field are averaged over `align_s`,
+  the car's own acceleration taken off when it moves; roll and pitch come from the mean
+  specific force, yaw from the field if it is plausible; a still gyro's mean reading is
+  its bias;
 - then per IMU sample, Madgwick's step (MARG when a plausible magnetometer reading is
   there, else IMU-only) with the gyro's bias removed. Its gain says who corrects the tilt:
   * standing (or nothing tells the car's own acceleration): the accelerometer (minus the
@@ -75,32 +76,44 @@ class Attitude:
         self.aligned = False
         self._align = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]  # n, f, w, m, n_mag
         self._align_t0: int | None = None
+        self._align_speed = (0.0, 0.0)      # the speed at the first and the last sample
 
     def realign(self) -> None:
-        """Roll and pitch are no longer to be trusted (a long gap, another IMU): align again."""
+        """Roll and pitch are no longer to be trusted (a long gap, another IMU, GNSS disagreeing
+        for long): align again."""
         self._realign()
 
     # -- alignment -----------------------------------------------------------------------------
-    def gather(self, t: int, fx, fy, fz, gx, gy, gz, mag, keep_yaw: bool) -> None:
+    def gather(self, t: int, fx, fy, fz, gx, gy, gz, mag, keep_yaw: bool, speed: float = 0.0) -> None:
         """Average the specific force (and field, rate) over align_s, then set the attitude;
-        `keep_yaw`: a realignment keeps the yaw that the heading filter knew."""
+        `keep_yaw`: a realignment keeps the yaw that the heading filter knew; `speed`: the
+        car's (GNSS) speed, when it realigns while driving: the turn's acceleration
+        (w x v, as in `update`) and the change of speed over align_s come off the specific
+        force, and the gyro's mean is a turn, not its bias."""
         a = self._align
         if self._align_t0 is None:
             self._align_t0 = t
+            self._align_speed = (speed, speed)
+        else:
+            self._align_speed = (self._align_speed[0], speed)
         a[0] += 1
+        fx, fz = fx + gz * speed, fz - gx * speed
         a[1:4] = [a[1] + fx, a[2] + fy, a[3] + fz]
         a[4:7] = [a[4] + gx, a[5] + gy, a[6] + gz]
         if mag is not None:
             a[7:11] = [a[7] + mag[0], a[8] + mag[1], a[9] + mag[2], a[10] + 1]
         s = self.settings
-        if (t - self._align_t0) * 1e-9 < s.align_s:
+        span_s = (t - self._align_t0) * 1e-9
+        if span_s < s.align_s:
             return
         n = a[0]
-        f = (a[1] / n, a[2] / n, a[3] / n)
+        v0, v1 = self._align_speed
+        f = (a[1] / n, a[2] / n - (v1 - v0) / span_s, a[3] / n)
         w = (a[4] / n, a[5] / n, a[6] / n)
         m = (a[7] / a[10], a[8] / a[10], a[9] / a[10]) if a[10] else None
-        if math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) < math.radians(s.max_gyro_bias_dps):
-            self.gyro_bias = [self.gyro_bias[k] + w[k] for k in range(3)]
+        lim = math.radians(s.max_gyro_bias_dps)
+        if max(v0, v1) < s.still_speed_mps and math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) < lim:
+            self.gyro_bias = [max(-lim, min(lim, self.gyro_bias[k] + w[k])) for k in range(3)]
         use_mag = m is not None and self.use_mag and self.mag_plausible(m, *f)
         yaw = self.yaw
         self.att.set_quaternion(attitude_from_vectors(f, m if use_mag else None, self.declination))

@@ -2,7 +2,7 @@
 
 One object shared by the estimator's parts, so each counts where it decides, and the
 state reports it all (`counts`, `gnss_used`, `gnss_rejected`, `input_rejected`,
-`last_reset`). Counters survive resets: they are the estimator's history, not the
+`time_refused`, `last_reset`). Counters survive resets: they are the estimator's history, not the
 filter's.
 """
 from __future__ import annotations
@@ -15,11 +15,17 @@ class Counters:
         self.gnss_used = 0
         self.gnss_rejected: dict[str, int] = {}
         self.input_rejected: dict[str, int] = {}
+        self.time_refused: dict[str, int] = {}      # source -> inputs refused for their stamp
         self.last_reset: str | None = None
 
-    def input(self, reason: str) -> None:
-        """Bad or late input, refused before any filter saw it."""
+    def input(self, reason: str, source: str | None = None) -> int:
+        """Bad or late input, refused before any filter saw it; `source`, for a refusal for
+        its time, is who sent it. Returns how many that source has had refused so."""
         self.input_rejected[reason] = self.input_rejected.get(reason, 0) + 1
+        if source is None:
+            return 0
+        n = self.time_refused[source] = self.time_refused.get(source, 0) + 1
+        return n
 
     def gnss(self, reason: str) -> None:
         """A well-formed fix (or part of one) that the filter refused."""

@@ -94,12 +94,12 @@ class Estimator:
         try:
             imu = imu_sample(sample, self._limits)
             t = imu.t
-            if timeline.check_future(t):
+            if timeline.check_future(t, imu.unit):
                 self._new_timeline("times jumped ahead")
             new_unit = imu.unit != timeline.imu_unit
             dt, takeover = timeline.admit_imu(imu.unit, t)
         except Rejected as exc:
-            self.counters.input(exc.reason)
+            self._refused(exc)
             return False
         except NewTimeline as exc:
             self.counters.input(exc.rejected)
@@ -129,22 +129,29 @@ class Estimator:
         timeline = self.timeline
         try:
             fix = gnss_fix(sample)
-            if timeline.check_future(fix.t):
+            if timeline.check_future(fix.t, fix.unit):
                 self._new_timeline("times jumped ahead")
-            timeline.admit_fix(fix.t)
+            timeline.admit_fix(fix.unit, fix.t)
         except Rejected as exc:
-            self.counters.input(exc.reason)
+            self._refused(exc)
             return False
         self.counters.counts["gnss"] += 1
         for due in timeline.schedule(fix):
             self.gnss.use(due)
         return True
 
+    def _refused(self, exc: Rejected) -> None:
+        """Count a refused input; say which source sends bad stamps (at its 1st, 10th,
+        100th ... refusal: a log that grows with the trouble, not with the samples)."""
+        n = self.counters.input(exc.reason, exc.source)
+        if n and math.log10(n) % 1.0 == 0.0:
+            self.log.warning("%s: input refused for its time (%s), %d so far", exc.source, exc, n)
+
     def set_waypoint(self, waypoint: tuple[float, float] | None) -> None:
         self.waypoint = None if waypoint is None else (float(waypoint[0]), float(waypoint[1]))
 
     def state(self) -> dict:
-        """The state as a viena.estimator.state/1 sample. Never carries a NaN: if the
+        """The state as a viena.estimator.state/2 sample. Never carries a NaN: if the
         filter produced one, it resets and reports the reset state instead."""
         self._seq += 1
         try:
@@ -178,6 +185,7 @@ class Estimator:
     gnss_used = property(lambda self: self.counters.gnss_used)
     gnss_rejected = property(lambda self: self.counters.gnss_rejected)
     input_rejected = property(lambda self: self.counters.input_rejected)
+    time_refused = property(lambda self: self.counters.time_refused)
     last_reset = property(lambda self: self.counters.last_reset)
 
     # -- life ------------------------------------------------------------------------------
@@ -265,10 +273,13 @@ class Estimator:
             self._mag = mag
 
         if not att.aligned:
-            att.gather(t, fx, fy, fz, gx, gy, gz, mag, heading.filter.valid)
+            speed = math.hypot(kx[3], kx[4]) if kf.initialized else 0.0
+            att.gather(t, fx, fy, fz, gx, gy, gz, mag, heading.filter.valid, speed)
             if kf.initialized:
                 if dt_state > 0.0:
                     kf.move(0.0, 0.0, 0.0, dt_state)
+                if att.aligned:             # a new attitude: the filter's tilt starts again
+                    kf.retilt(math.radians(self.settings.tilt_sigma_deg))
                 history.append(t, kf.x, att.yaw)
             return
 

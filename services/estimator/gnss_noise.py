@@ -1,11 +1,11 @@
 """How much of a receiver's error is white, seen from its own fixes.
 
 A receiver's sigma says how wrong a fix may be, not how that error moves: a standalone
-receiver's error wanders over minutes (orbits, clocks, the atmosphere: seed table 5.2),
-an RTK or a simulated white one jumps from fix to fix. Averaging fixes helps with the
-second and not at all with the first, so the Kalman filter splits each fix's variance:
-a white part, used as the fix's own noise, and a wandering part, the receiver's error
-state (kalman.py).
+receiver's error wanders over minutes (orbits, clocks, the atmosphere, see
+docs/sensors.md#gnss-error-budget), an RTK or a simulated white one jumps from fix to
+fix. Averaging fixes helps with the second and not at all with the first, so the Kalman
+filter splits each fix's variance: a white part, used as the fix's own noise, and a
+wandering part, the receiver's error state (kalman.py).
 
 The split is learnt. From one fix to the next the wandering part barely moves, and the
 IMU knows how the antenna moved, so half the square of (change of the fix - change of

@@ -18,8 +18,9 @@ For each fix the timeline hands over:
 - the yaw: the course over ground from a velocity that passed, or, after a few refused
   in a row, from the refused one with its disagreement as its uncertainty; from the
   positions' own direction for a receiver without velocity (NMEA GGA);
-- usable fixes that keep failing the gate for `gnss_reset_s`: GNSS is believed, position,
-  velocity and yaw start again from it.
+- usable fixes that keep failing the gate for `gnss_reset_s`, or an IMU-driven velocity
+  that no car's motion explains (IMU_CONTRADICTED_MPS off at two fixes in a row): GNSS is
+  believed, position and velocity start again from it, yaw and tilt from scratch.
 Equations: docs/estimator.md#gnss-update-and-lever-arm.
 """
 from __future__ import annotations
@@ -35,6 +36,10 @@ from viena.services.estimator.kalman import Diverged
 from viena.services.estimator.timing import OffsetHint
 from viena.services.gnss.model.fix import Fix
 
+#: the IMU-driven velocity this far (m/s) off GNSS's at this many fixes in a row: the IMU
+#: is wrong (150 m/s^2 for a second is in the sensor's range, but no car's motion)
+IMU_CONTRADICTED_MPS = 10.0
+IMU_CONTRADICTED_FIXES = 2
 #: a receiver's velocity refused this many times in a row: its course is used anyway
 COURSE_AFTER_REFUSALS = 3
 #: a position-only receiver's course is taken over at least this long (s) ...
@@ -74,6 +79,7 @@ class GnssUpdate:
     def restart(self) -> None:
         """A new estimate: forget what the old one made of the fixes (not their times)."""
         self.reject_since: int | None = None    # usable fixes failing the gate since
+        self.contradicted = 0                   # fixes in a row whose velocity the IMU's left far
         self.speed, self.speed_t = math.inf, None   # last GNSS horizontal speed, and its time
         self.vel_refused: dict[str, int] = {}   # each receiver's velocities refused in a row
         self.positions: dict[str, tuple] = {}   # a position-only receiver's course anchor
@@ -243,7 +249,15 @@ class GnssUpdate:
             counters.gnss("velocity_innovation")
         if pos_ok and (vel_ok or nu_v is None):
             self.reject_since = None
-        elif self._disagreement(fix, z, Rp, arm, vel, velR, wander):
+        if nu_v is not None and imu_mode and self._imu_contradicted(nu_v, vel_ok):
+            # no car's motion takes its velocity this far from GNSS's between two fixes:
+            # the IMU's samples were wrong (in range, but not physical); what they taught
+            # the filters and the clock's hint goes too
+            self.timing = OffsetHint()
+            self._start_again(f"the IMU's velocity left GNSS's by more than {IMU_CONTRADICTED_MPS:g} m/s "
+                              "at two fixes in a row", fix, z, Rp, arm, vel, velR, wander)
+            return
+        if not (pos_ok and (vel_ok or nu_v is None)) and self._disagreement(fix, z, Rp, arm, vel, velR, wander):
             return
         if vel_ok:
             self.vel_refused[unit] = 0
@@ -293,14 +307,32 @@ class GnssUpdate:
         limit = self.settings.gnss_reset_s
         if (fix.t - self.reject_since) * 1e-9 <= limit:
             return False
+        self._start_again(f"GNSS disagreed for {limit:g} s", fix, z, Rp, arm, vel, velR, wander)
+        return True
+
+    def _imu_contradicted(self, nu_v, vel_ok: bool) -> bool:
+        """The filter's velocity, which the IMU drives, is more than IMU_CONTRADICTED_MPS off
+        GNSS's horizontally at IMU_CONTRADICTED_FIXES fixes in a row."""
+        if vel_ok or nu_v[0] * nu_v[0] + nu_v[1] * nu_v[1] < IMU_CONTRADICTED_MPS ** 2:
+            self.contradicted = 0
+            return False
+        self.contradicted += 1
+        return self.contradicted >= IMU_CONTRADICTED_FIXES
+
+    def _start_again(self, why: str, fix, z, Rp, arm, vel, velR, wander) -> None:
+        """Believe GNSS: position and velocity start again from this fix, the yaw from the
+        next course, roll and pitch from a new alignment (the attitude that made the
+        velocity go wrong may have gone wrong itself)."""
         est = self.est
-        why = f"GNSS disagreed for {limit:g} s: position, velocity and yaw reinitialised"
+        why = f"{why}: position, velocity and attitude reinitialised"
         est.counters.reset(why)
         est.log.warning("%s", why)
         est.kf.reset()
         est.history.clear()
         est.heading.forget()
+        est.attitude.realign()
         self.reject_since = None
+        self.contradicted = 0
         self.vel_refused.clear()
         for share in self.white.values():
             share.forget()
@@ -309,7 +341,6 @@ class GnssUpdate:
             Rp = Rp + np.eye(3) * (lever[0] ** 2 + lever[1] ** 2 + lever[2] ** 2)
             arm = (0.0, 0.0, 0.0)
         self._initialize(fix, z, Rp, arm, vel, velR, wander)
-        return True
 
     def _initialize(self, fix, z, Rp, arm, vel, velR, wander) -> None:
         """First usable fix: position (and velocity) straight from GNSS; the receiver's

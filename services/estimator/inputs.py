@@ -23,11 +23,13 @@ STANDARD_GRAVITY = 9.80665
 
 
 class Rejected(Exception):
-    """An input the filter must not see; `reason` is the counter name."""
+    """An input the filter must not see; `reason` is the counter name, `source` the unit
+    whose stamp was refused (for refusals for time)."""
 
-    def __init__(self, reason: str, detail: str = ""):
+    def __init__(self, reason: str, detail: str = "", source: str | None = None):
         super().__init__(f"{reason}: {detail}" if detail else reason)
         self.reason = reason
+        self.source = source
 
 
 def _read(read, sample):

@@ -11,7 +11,7 @@ State x = [p_E p_N p_U, v_E v_N v_U, b_x b_y b_z | t_E t_N | g_E g_N g_U per rec
   loosely coupled INS/GNSS filter), which is how the tilt is told apart from the bias:
   the bias turns with the car, a tilt error does not;
 - g (one block per receiver, `receiver(unit)`): what makes a receiver's fixes wrong
-  together for minutes (satellite orbits and clocks, the atmosphere: seed table 5.2), a
+  together for minutes (satellite orbits and clocks, the atmosphere: docs/sensors.md#gnss-error-budget), a
   first-order Gauss-Markov process of correlation time `gnss_bias_tau_s` (Brown & Hwang
   2012, ch. 2; Groves 2013, ch. 9 on GNSS error correlation). A fix measures p + R l + g
   plus white noise. Receivers on one car share one sky: their blocks are correlated
@@ -355,6 +355,17 @@ class NavKalman:
         for i in range(self.n):
             x[i] += dx[i]
         return True, d2, dx
+
+    def retilt(self, sigma_rad: float) -> None:
+        """The attitude was aligned afresh: its tilt error is new, uncorrelated with the
+        rest, of this sigma."""
+        if not self.tilt:
+            return
+        x, P = self.x, self.P
+        x[9] = x[10] = 0.0
+        P[T_, :] = 0.0
+        P[:, T_] = 0.0
+        P[T_, T_] = np.eye(2) * sigma_rad ** 2
 
     def take_tilt(self) -> tuple[float, float]:
         """The tilt error estimated so far (rad, about East and North), handed over to be

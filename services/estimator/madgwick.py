@@ -1,11 +1,12 @@
-"""Madgwick's gradient-descent attitude filter (seed ref. [19]), MARG and IMU-only.
+"""Madgwick's gradient-descent attitude filter (Madgwick 2010), MARG and IMU-only.
 
 Madgwick's report writes the Earth frame with gravity on +z and the horizontal magnetic
 field on +x. We keep exactly that inside, with +x on *magnetic* north (a north-west-up
-frame turned by the declination), so the update is the report's step for step (eqs. 12,
-13, 25-26, 31-34, 45-46) and the tests can check it against the `ahrs` package on the same
-data. Outside, the quaternion is the project's (design §5): Hamilton, scalar first,
-rotating body vectors into ENU, the same `q` as `viena.common.rotation`:
+frame turned by the declination), so the update is the report's step for step (its eqs.
+12, 13, 25-26, 31-34, 45-46: docs/estimator.md#madgwick-update-equations) and the tests
+can check it against the `ahrs` package on the same data. Outside, the quaternion is the
+project's (docs/frames.md#quaternions): Hamilton, scalar first, rotating body vectors into
+ENU, the same `q` as `viena.common.rotation`:
 
     q_enu = q_off * q_mag,   q_off = rotation about up by 90 deg - declination
 

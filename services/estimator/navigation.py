@@ -1,4 +1,4 @@
-"""Bearing, distance and heading error to a waypoint (the Titans report's geo controller).
+"""Bearing, distance and heading error to a waypoint (docs/estimator.md#waypoint-guidance).
 
 The report measures the bearing from north, the compass heading from north, and steers by
 their difference, all mapped to +-180 deg: a positive heading error means the waypoint is

@@ -95,6 +95,7 @@ def build_state(est, seq: int) -> tuple[dict, list]:
         "gnss_used": counters.gnss_used,
         "gnss_rejected": dict(counters.gnss_rejected),
         "input_rejected": dict(counters.input_rejected),
+        "time_refused": dict(counters.time_refused),
         "counts": dict(counters.counts),
         "last_reset": counters.last_reset,
         "imu_time_offset_hint_s": est.gnss.timing.offset_s,

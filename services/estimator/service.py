@@ -123,7 +123,8 @@ class EstimatorService(Service):
         if now - self._last_health >= 1.0:
             self._last_health = now
             for name in ("mode", "heading_source", "gnss_live", "gnss_used", "gnss_rejected",
-                         "input_rejected", "last_reset", "sigma_h_m", "imu_time_offset_hint_s"):
+                         "input_rejected", "time_refused", "last_reset", "sigma_h_m",
+                         "imu_time_offset_hint_s"):
                 self.health.set(name, state[name])
             self._report_clock(state["imu_time_offset_hint_s"])
 

@@ -50,10 +50,10 @@ class EstimatorSettings:
     nonholonomic: bool = setting(True, "the car does not slide sideways nor jump")
     nhc_sigma_mps: float = setting(0.1, "sigma of the non-holonomic constraint")
     zupt_sigma_mps: float = setting(0.02, "sigma of a zero-velocity update")
-    still_gyro_radps: float = setting(0.0, "standstill: gyro rms below this (0: 3 x what the first "
-                                           "align_s parked show, at least 0.005) ...")
-    still_accel_mps2: float = setting(0.0, "... and specific force this close to gravity (0: 3 x "
-                                           "the first align_s parked, at least 0.05) ...")
+    still_gyro_radps: float = setting(0.0, "standstill: gyro rms below this (0: learnt, 3 x what the "
+                                           "first align_s parked show, within 0.01 .. 0.05) ...")
+    still_accel_mps2: float = setting(0.0, "... and specific force this close to gravity (0: learnt, "
+                                           "3 x the first align_s parked, within 0.2 .. 1.0) ...")
     still_speed_mps: float = setting(0.3, "... and GNSS and filter speeds below this")
     gate_chi2: float = setting(16.27, "innovation test (3 dof, 99.9 %)")
     max_pos_sigma_m: float = setting(50.0, "fixes with a larger position sigma are not used")
@@ -73,7 +73,8 @@ class EstimatorSettings:
     # time
     late_window_s: float = setting(1.0, "how late a GNSS fix may be and still be used")
     imu_timeout_s: float = setting(0.5, "IMU silent this long: not live")
-    imu_gap_s: float = setting(0.2, "larger steps between IMU samples are not integrated")
+    imu_gap_s: float = setting(0.2, "larger steps between IMU samples are not integrated (and the "
+                                    "sample after one waits for the next to confirm it)")
     gnss_timeout_s: float = setting(2.0, "no usable fix from a receiver this long: it is not live")
     max_future_s: float = setting(2.0, "inputs further ahead of the clock are rejected")
     # input limits

@@ -1,7 +1,7 @@
 """viena.estimator.state/2: the car's estimated state, on viena/<car>/estimator/state.
 
-SI units, angles in rad except the waypoint guidance, which keeps the Titans report's
-degrees (as its name says). Frames (docs/frames.md): positions and velocities in the local
+SI units, angles in rad except the waypoint guidance, which keeps degrees, as its names
+say (docs/estimator.md#waypoint-guidance). Frames (docs/frames.md): positions and velocities in the local
 ENU frame at `origin`, attitude body -> ENU (body x right, y forward, z up), yaw about
 up (counter-clockwise from north), pitch about the right axis (nose up > 0), roll about
 the forward axis (right side down > 0), in the aircraft order yaw, pitch, roll:
@@ -65,10 +65,11 @@ STATE = Schema("viena.estimator.state/2", {
     "gnss_used": F.int,
     "gnss_rejected": F.map,               # reason -> count
     "input_rejected": F.map,              # reason -> count (bad or late input)
+    "time_refused": F.optional(F.map),    # source (unit) -> inputs refused for their stamp
     "counts": F.map,                      # imu, gnss, imu_gaps, resets, ...
     "last_reset": F.optional(F.str),      # why the filter last reset itself
     "imu_time_offset_hint_s": F.optional(F.float),  # the IMU's time_offset_s the fixes point at
-    # navigation to a waypoint (Titans report)
+    # navigation to a waypoint (docs/estimator.md#waypoint-guidance)
     "waypoint": F.optional(F.vec(2)),     # [lat_deg, lon_deg]
     "wp_bearing_deg": F.optional(F.float),          # from north, clockwise, +-180
     "wp_distance_m": F.optional(F.float),
@@ -105,6 +106,9 @@ def monitor_view(state: dict) -> dict[str, str]:
                    + ("" if state.get("heading_valid") is not False else " (not valid)"),
         "gnss used": fmt_num(state.get("gnss_used")),
     }
+    refused = state.get("time_refused")
+    if isinstance(refused, dict) and refused:       # a source sending bad stamps (issue 15)
+        cells["refused for time"] = ", ".join(f"{k} {v}" for k, v in sorted(refused.items(), key=str))
     hint = number(state.get("imu_time_offset_hint_s"))
     if hint is not None:
         cells["IMU clock"] = (f"stamps {abs(hint) * 1e3:.0f} ms {'late' if hint < 0 else 'early'}: "

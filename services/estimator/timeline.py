@@ -18,7 +18,12 @@ told what happened and when; this module decides the when:
   without a clock, an hour ahead of the state);
 - `NEW_TIMELINE` inputs in a row refused for their time mean the earlier times were the
   wrong ones: the estimator is told (`check_future` returns True, or `admit_imu` raises
-  `NewTimeline`) and starts over on the new times.
+  `NewTimeline`) and starts over on the new times;
+- one sample's stamp never blocks the others (issue 15): an IMU sample more than
+  `imu_gap_s` past its unit's last one, or a fix more than the wait ahead of a live IMU,
+  is held back (`time_jump`) until its source's next stamp follows it (then the time
+  really jumped: a gap); if the next one goes on from before, it was a lie, and the stream
+  was never stopped. Each refusal for time names its source (`Rejected.source`).
 """
 from __future__ import annotations
 
@@ -60,29 +65,42 @@ class Timeline:
         self.wait_ns = max(self.imu_timeout_ns, self.late_ns)
         self._n = 0
         self._refused = 0                   # inputs refused for their time, in a row
+        self.jump_ns = int(settings.imu_gap_s * 1e9)
+        self._held: dict[str, int] = {}     # a source's stamp that jumped ahead, held back
 
     def restart(self) -> None:
         """Forget every time (not the IMU unit): the next inputs set them again."""
         self.t_imu = self.t_state = None
         self._pending.clear()
         self._refused = 0
+        self._held.clear()
 
     # -- admission ---------------------------------------------------------------------------
-    def check_future(self, t: int) -> bool:
-        """Rejected("future") for an input too far ahead of the clock (or, offline, of the
-        state). True when such inputs keep coming offline: they are the right times, and
-        a new timeline must start (`restart`) before this input is used."""
+    def check_future(self, t: int, source: str) -> bool:
+        """Rejected("future") for an input of `source` too far ahead of the host clock (or,
+        offline, of the state). True when such inputs keep coming offline: they are the
+        right times, and a new timeline must start (`restart`) before this input is used."""
         if self.clock is not None:
             if t - self.clock() > self.future_ns:
-                raise Rejected("future")
+                raise Rejected("future", source=source)
         elif self.t_state is not None and t - self.t_state > _HOUR_NS:
             # offline there is no clock: an hour ahead of everything so far is a bad time,
             # unless it goes on (a recording made of two sessions)
             self._refused += 1
             if self._refused < NEW_TIMELINE:
-                raise Rejected("future", "an hour ahead of the state")
+                raise Rejected("future", "an hour ahead of the state", source)
             return True
         return False
+
+    def _jumped(self, source: str, t: int, step_ns: int) -> None:
+        """`source`'s stamp t jumped ahead of its stream: Rejected("time_jump") unless the
+        source's previous stamp was held back and t follows it within `step_ns` (the time
+        really jumped, and this confirms it; the next may follow this one)."""
+        held = self._held.get(source)
+        self._held[source] = t
+        if held is not None and 0 < t - held <= step_ns:
+            return
+        raise Rejected("time_jump", "ahead of its own stream", source)
 
     def admit_imu(self, unit: str, t: int) -> tuple[float, bool]:
         """(seconds since the last IMU sample, 0 for a unit's first; True if this unit just
@@ -98,21 +116,31 @@ class Timeline:
                 takeover = True
             self.imu_unit = unit
         last = self.t_imu
-        if last is not None and t <= last:
-            reason = "imu_late" if t < last else "imu_duplicate"
-            self._refused += 1
-            if self._refused >= NEW_TIMELINE:
-                raise NewTimeline("IMU times went back", reason)
-            raise Rejected(reason)
+        if last is not None:
+            if t <= last:
+                reason = "imu_late" if t < last else "imu_duplicate"
+                self._refused += 1
+                if self._refused >= NEW_TIMELINE:
+                    raise NewTimeline("IMU times went back", reason)
+                raise Rejected(reason, source=unit)
+            if t - last > self.jump_ns:
+                self._jumped(unit, t, self.jump_ns)
         self._refused = 0
         self._fixes_since_imu = 0
         self.t_imu = t
         return (0.0 if last is None else (t - last) * 1e-9), takeover
 
-    def admit_fix(self, t: int) -> None:
-        """Rejected("gnss_late") for a fix older than the state by more than late_window_s."""
+    def admit_fix(self, unit: str, t: int) -> None:
+        """Rejected("gnss_late") for a fix older than the state by more than late_window_s;
+        Rejected("time_jump") for one further ahead of a live IMU than a fix may wait, until
+        the receiver's next fix follows it."""
         if self.t_state is not None and t < self.t_state - self.late_ns:
-            raise Rejected("gnss_late")
+            raise Rejected("gnss_late", source=unit)
+        t_imu = self.t_imu
+        if t_imu is not None and self._fixes_since_imu < QUIET_FIXES and t > t_imu + self.wait_ns:
+            self._jumped(unit, t, self.wait_ns)
+        elif self._held:
+            self._held.pop(unit, None)
 
     # -- fixes and the IMU -------------------------------------------------------------------
     def schedule(self, fix) -> list:

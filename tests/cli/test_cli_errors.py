@@ -110,3 +110,12 @@ def test_tools_without_connect_use_the_running_profiles_endpoint(tmp_path):
         listed = subprocess.run([*VIENA, "list"], env=env, capture_output=True, text=True, timeout=90)
         assert listed.returncode == 0, listed.stderr
         assert "viena/elettra/sim/truth" in listed.stdout and "viena.sim.truth/1" in listed.stdout
+
+
+def test_sub_without_timeout_still_gives_up_connecting():
+    from viena.tool import CONNECT_TIMEOUT_S
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    run = viena("sub", "--connect", endpoint, timeout=60)
+    assert run.returncode == 1
+    assert f"cannot reach the router at {endpoint} in {CONNECT_TIMEOUT_S:g} s: nothing listens there" in one_line(run)

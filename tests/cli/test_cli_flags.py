@@ -77,3 +77,15 @@ def test_router_config_is_toml_settings_and_the_zenoh_file_has_its_own_flag(tmp_
     toml.write_text('[zenoh]\nlisten = "tcp/127.0.0.1:7999"\nconfig = "router.json5"\n')
     path, listen, connect = router.router_settings(router.build_parser().parse_args(["--config", str(toml)]))
     assert path == json5 and listen == ["tcp/127.0.0.1:7999"] and connect is None
+
+
+def test_viena_steer_takes_the_connection_flags_too():
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-m", "viena.services.steering.client", "--help"],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+    for flag in (*CONNECTION_FLAGS, "--timeout"):
+        assert flag in run.stdout, flag
+    assert "--unit" not in run.stdout

@@ -16,7 +16,8 @@ IMU_PARKED = sorted((DATA / "imu").glob("razor_parked_*.csv"))
 G = 9.80665
 #: the Razor firmware's loop rate; the CSV's host times come in USB bursts
 RAZOR_RATE_HZ = 82.5
-#: BESTXYZ solution status (NovAtel OEM4 vol. 2, table 51): the ones in the recording
+#: BESTXYZ solution status (NovAtel OEM4 vol. 2, table 48; docs/sensors.md#logs-used): the
+#: ones in the recording
 SOL_STATUS = {0: "SOL_COMPUTED", 1: "INSUFFICIENT_OBS", 2: "NO_CONVERGENCE"}
 
 

@@ -1,7 +1,11 @@
-"""Frames and conventions against the seed's equations (ch. 5), pymap3d and the car.
+"""Frames and conventions (docs/frames.md) against the guide's printed equations, pymap3d
+and the car.
 
-Seed eq. 5.2 is written out here with its first-row typo fixed ([-sin lon, cos lon, 0]),
-eqs. 5.4, 5.8 and 5.10 as printed, and each is checked against what the estimator uses.
+The guide's eq. 5.2 (docs/frames.md#ecef-to-enu) is written out here with its first-row
+typo fixed ([-sin lon, cos lon, 0]), its eqs. 5.4, 5.8 and 5.10
+(docs/frames.md#rotation-matrices-and-euler-angles, docs/frames.md#quaternions) as printed,
+and each is checked against what the estimator uses. The helpers keep the guide's
+equation numbers in their names on purpose: they reproduce what it prints.
 """
 from __future__ import annotations
 
@@ -38,10 +42,11 @@ tilts = st.floats(-1.4, 1.4, allow_nan=False)
 
 
 def seed_eq_5_2(lat_deg: float, lon_deg: float) -> np.ndarray:
-    """ECEF -> ENU rotation, seed eq. 5.2 (lambda = longitude, phi = latitude), typo fixed."""
+    """ECEF -> ENU rotation, the guide's eq. 5.2 (lambda = longitude, phi = latitude), typo
+    fixed (docs/frames.md#ecef-to-enu)."""
     lam, phi = math.radians(lon_deg), math.radians(lat_deg)
     return np.array([
-        [-math.sin(lam), math.cos(lam), 0.0],            # the seed prints cos(phi) here
+        [-math.sin(lam), math.cos(lam), 0.0],            # the guide prints cos(phi) here
         [-math.sin(phi) * math.cos(lam), -math.sin(phi) * math.sin(lam), math.cos(phi)],
         [math.cos(phi) * math.cos(lam), math.cos(phi) * math.sin(lam), math.sin(phi)],
     ])
@@ -109,7 +114,7 @@ def test_first_fix_origin_and_the_lever_free_velocity_rotation():
     np.testing.assert_allclose(cov, np.eye(3) * 4.0, atol=1e-12)      # isotropic stays isotropic
 
 
-# -- rotations and quaternions (eq. 5.4, 5.8, 5.10) -----------------------------------------------
+# -- rotations and quaternions (eq. 5.4, 5.8, 5.10: docs/frames.md#quaternions) -------------------
 @settings(max_examples=100, deadline=None)
 @given(angles, tilts, angles)
 def test_seed_eq_5_4_is_the_transpose_of_our_body_to_world(yaw, pitch, roll):
@@ -164,7 +169,7 @@ def test_still_alignment_recovers_the_attitude(yaw, pitch, roll):
     assert (y, p, rr) == pytest.approx((0.0, pitch, roll), abs=1e-9)
 
 
-# -- navigation to a waypoint (Titans report) -----------------------------------------------------
+# -- navigation to a waypoint (docs/estimator.md#waypoint-guidance) --------------------------------
 def titans_flat_bearing_distance(lat, lon, wp_lat, wp_lon):
     """The report's way: metres per degree at this latitude, the angle to a point north."""
     m_lat = 111_132.92 - 559.82 * math.cos(2 * math.radians(lat))

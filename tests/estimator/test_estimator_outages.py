@@ -56,7 +56,7 @@ def hills(request):
 def test_pulling_away_teaches_no_forward_bias(hills):
     rows, _ = hills
     t, bias_forward = rows[:, 0], rows[:, 3]
-    # the seed's true bias is absorbed by levelling; what is left to learn is small, and the
+    # each random seed's true bias is absorbed by levelling; what is left to learn is small, and the
     # first seconds of acceleration (10-25 s) do not make it up
     assert np.abs(bias_forward[(t > 10.0) & (t < 30.0)]).max() < 0.05
 
