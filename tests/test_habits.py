@@ -12,6 +12,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow  # two tools in subprocesses: seconds
 def test_lint_and_types_find_nothing(tmp_path):
     pytest.importorskip("ruff")
     pytest.importorskip("mypy")
