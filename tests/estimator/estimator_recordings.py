@@ -1,4 +1,4 @@
-"""The real recordings in ../shared/data as samples in the agreed schemas.
+"""The car's real recordings (shipped in data/) as samples in the agreed schemas.
 
 Only what the estimator's tests need: the 2016 NovAtel BESTXYZ drive as viena.gnss.fix/1
 dicts and the 2017 parked Razor recordings as viena.imu.sample/1 dicts.
@@ -10,8 +10,8 @@ import math
 from datetime import UTC, datetime
 from pathlib import Path
 
-DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
-GNSS_DRIVE = DATA / "gnss" / "novatel_bestxyz_drive_2016-06-01.csv"
+DATA = Path(__file__).resolve().parents[2] / "data"          # the copies the product ships
+GNSS_DRIVE = DATA / "novatel_bestxyz_drive_2016-06-01.csv"
 IMU_PARKED = sorted((DATA / "imu").glob("razor_parked_*.csv"))
 G = 9.80665
 #: the Razor firmware's loop rate; the CSV's host times come in USB bursts

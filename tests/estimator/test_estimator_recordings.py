@@ -1,4 +1,4 @@
-"""The estimator on the car's real recordings (../shared/data).
+"""The estimator on the car's real recordings (shipped in data/).
 
 - the parked Razor recordings (2017, traction motor off and at 0, 10, 20 Hz): the static
   alignment gives roll and pitch that stay put and agree with the mean specific force;

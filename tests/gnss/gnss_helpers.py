@@ -67,7 +67,12 @@ class TwinHarness:
                 self.logs.append(decode_log(frame))
 
 
-def read_csv(path=SHARED_CSV) -> list[dict]:
+def read_csv(path=None) -> list[dict]:
+    """The car's 2016 drive: the original recording when it is beside the repository,
+    else the copy the product ships (test_the_shipped_recording_is_the_cars: the same)."""
+    if path is None:
+        from viena.services.gnss.simulator import DRIVE_CSV
+        path = SHARED_CSV if SHARED_CSV.exists() else DRIVE_CSV
     with open(path, newline="") as f:
         return [{k: v.strip() for k, v in row.items()} for row in csv.DictReader(f)]
 

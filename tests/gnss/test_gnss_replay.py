@@ -46,6 +46,7 @@ def assert_epoch_equals_row(msg, row):
     assert msg.gps_ms % 100 == 0
 
 
+@pytest.mark.skipif(not SHARED_CSV.exists(), reason="the original recording is not beside the repository")
 def test_the_shipped_recording_is_the_cars():
     assert filecmp.cmp(DRIVE_CSV, SHARED_CSV, shallow=False)
     assert len(ROWS) == 7634
