@@ -72,24 +72,32 @@ def nees_h(state: dict, err_h) -> float:
     return float(e @ np.linalg.solve(horizontal_cov(state), e))
 
 
-def score(samples, settings: dict, every: int = 1) -> dict:
-    """Feed a drive, compare the state after every `every`-th IMU sample with the truth."""
-    est = Estimator(settings)
-    pos, yaw, tilt, moving, gnss, t_s, nees = [], [], [], [], [], [], []
+def states_of(est, samples, every: int = 1, on_gnss=None):
+    """Feed a drive to `est`; yield (state, truth) after every `every`-th IMU sample once
+    the position is valid. `on_gnss(fix, truth)` sees each fix as it goes in."""
     n = 0
     for kind, sample, truth in samples:
         if kind == "gnss":
             est.add_gnss(sample)
-            if sample["valid"]:
-                gnss.append(np.subtract(est.frame.enu_of_ecef(sample["ecef_m"]), truth))
+            if on_gnss is not None:
+                on_gnss(sample, truth)
             continue
         est.add_imu(sample)
         n += 1
-        if n % every:
-            continue
-        s = est.state()
-        if not s["position_valid"]:
-            continue
+        if n % every == 0 and (s := est.state())["position_valid"]:
+            yield s, truth
+
+
+def score(samples, settings: dict, every: int = 1) -> dict:
+    """Feed a drive, compare the state after every `every`-th IMU sample with the truth."""
+    est = Estimator(settings)
+    pos, yaw, tilt, moving, gnss, t_s, nees = [], [], [], [], [], [], []
+
+    def fix_error(fix, truth):
+        if fix["valid"]:
+            gnss.append(np.subtract(est.frame.enu_of_ecef(fix["ecef_m"]), truth))
+
+    for s, truth in states_of(est, samples, every, fix_error):
         e = np.subtract(s["enu_m"], truth.enu_m)
         pos.append(e)
         nees.append(nees_h(s, e[:2]))

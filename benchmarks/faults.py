@@ -36,7 +36,15 @@ from pathlib import Path
 
 import msgpack
 
-from benchmarks.harness import CLOCK_TICKS, cpu_seconds, free_port, percentile, processes, start_router, wait_for_port
+from benchmarks.harness import (
+    CLOCK_TICKS,
+    cpu_seconds,
+    percentile,
+    processes,
+    start_drive_twin,
+    start_router,
+    start_steering,
+)
 from benchmarks.security import open_as, sim_car
 from benchmarks.steering import _wait_ready
 
@@ -170,12 +178,7 @@ def owner_under_flood(samples: int, flood_rate: float) -> dict:
 
     with processes() as start:
         router = start_router(start)
-        port = free_port()
-        start("-m", "viena.services.steering.simulator", "--port", port, "--sweep-speed-qc-s", 200_000,
-              "--log-level", "ERROR")
-        wait_for_port(port)
-        service = start("-m", "viena.services.steering.service", "--connect", router, "--interface", "slcan",
-                        "--channel", f"socket://127.0.0.1:{port}", "--log-level", "ERROR")
+        service = start_steering(start, router, start_drive_twin(start))
         with open_as({}, router, "pilot") as session:
             _wait_ready(session)
             trips = Trips()

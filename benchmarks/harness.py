@@ -76,6 +76,22 @@ def processes():
                 proc.wait()
 
 
+def start_drive_twin(start) -> str:
+    """The EPOS twin on a free port (a fast sweep, so calibration takes no time); its
+    slcan URL for the steering service or a bus watcher."""
+    port = free_port()
+    start("-m", "viena.services.steering.simulator", "--port", port, "--sweep-speed-qc-s", 200_000,
+          "--log-level", "ERROR")
+    wait_for_port(port)
+    return f"socket://127.0.0.1:{port}"
+
+
+def start_steering(start, router: str, url: str):
+    """`viena-steering` on the drive at `url`, connected to `router`; its process."""
+    return start("-m", "viena.services.steering.service", "--connect", router, "--interface", "slcan",
+                 "--channel", url, "--log-level", "ERROR")
+
+
 def start_router(start) -> str:
     """A `viena router` on a free loopback port, via a `processes()` starter."""
     port = free_port()

@@ -20,7 +20,7 @@ import json
 import threading
 import time
 
-from benchmarks.harness import cpu_share, free_port, percentile, processes, start_router, wait_for_port
+from benchmarks.harness import cpu_share, percentile, processes, start_drive_twin, start_router, start_steering
 from viena.services.steering.driver import ds402
 
 KEY = "viena/elettra/steering"
@@ -107,14 +107,9 @@ def main(argv=None) -> int:
 
     with processes() as start:
         router = start_router(start)
-        port = free_port()
-        start("-m", "viena.services.steering.simulator", "--port", port, "--sweep-speed-qc-s", 200_000,
-              "--log-level", "ERROR")
-        wait_for_port(port)
-        url = f"socket://127.0.0.1:{port}"
+        url = start_drive_twin(start)
         watch = BusWatch(url)
-        service = start("-m", "viena.services.steering.service", "--connect", router,
-                        "--interface", "slcan", "--channel", url, "--log-level", "ERROR")
+        service = start_steering(start, router, url)
         session = zenoh.open(load_zenoh_config(mode="client", connect=[router]))
         try:
             _wait_ready(session)

@@ -14,11 +14,10 @@ import sys
 import threading
 import time
 
-from viena.common.log import setup_logging
 from viena.common.session import add_common_arguments, stop_on_signals
 from viena.hz import RateMeter
 from viena.recording import schema_name
-from viena.tool import Connection, Fail, add_timeout_flag, guarded, key_expressions
+from viena.tool import Connection, Fail, add_timeout_flag, guarded, key_expressions, tool_logging
 
 DURATION_S = 2.5
 
@@ -66,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
+    tool_logging(args)
     if args.duration <= 0:
         raise Fail("--duration must be > 0", 2)
     link = Connection(args)

@@ -18,10 +18,9 @@ import time
 from collections import deque
 from dataclasses import dataclass
 
-from viena.common.log import setup_logging
 from viena.common.session import add_common_arguments, stop_on_signals
 from viena.recording import human_bytes
-from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions
+from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions, tool_logging
 
 WINDOW = 200
 PRINT_PERIOD_S = 1.0
@@ -96,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
+    tool_logging(args)
     if args.window < 2:
         raise Fail("--window must be at least 2", 2)
     link = Connection(args)

@@ -35,14 +35,13 @@ from viena.common.display import Alert, fmt_age, fmt_map
 from viena.common.errors import InputError
 from viena.common.health import HealthReport
 from viena.common.keys import Keys
-from viena.common.log import setup_logging
 from viena.common.session import add_common_arguments, config_endpoints, stop_on_signals
 from viena.services.estimator.state import monitor_view as estimator_view
 from viena.services.gnss.model.fix import monitor_view as gnss_view
 from viena.services.imu.model.sample import monitor_view as imu_view
 from viena.services.sim.model.truth import monitor_view as truth_view
 from viena.services.steering.model.state import monitor_view as steering_view
-from viena.tool import Connection, Fail, add_timeout_flag, guarded
+from viena.tool import Connection, Fail, add_timeout_flag, guarded, tool_logging
 
 DATA_STALE_S = 1.0
 HEALTH_STALE_S = 3.0            # health comes once a second: three missed is stale
@@ -474,7 +473,7 @@ def _run(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.live import Live
 
-    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
+    tool_logging(args)
     if args.refresh <= 0:
         raise Fail("--refresh must be > 0", 2)
     link = Connection(args)

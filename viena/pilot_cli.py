@@ -25,11 +25,10 @@ import time
 from pathlib import Path
 
 from viena.common.errors import InputError
-from viena.common.log import setup_logging
 from viena.common.payload import is_json_text, to_jsonable
 from viena.common.schema import unpack
 from viena.common.session import add_common_arguments, stop_on_signals
-from viena.tool import Connection, Fail, add_timeout_flag, guarded
+from viena.tool import Connection, Fail, add_timeout_flag, guarded, tool_logging
 
 ROUTE_HELP = "give the pilot a route, show it, or record one by driving"
 PILOT_HELP = "start or stop the pilot, or show its state"
@@ -90,7 +89,7 @@ def run_pilot(args: argparse.Namespace) -> int:
 
 # -- the commands -------------------------------------------------------------------------------
 def _connect(args, command: bool):
-    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
+    tool_logging(args)
     identity = (os.environ.get("VIENA_IDENTITY") or "pilot") if command else None
     link = Connection(args, identity=identity)
     session = link.open(stop_on_signals(), args.timeout)

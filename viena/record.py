@@ -26,10 +26,9 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from viena.common.log import setup_logging
 from viena.common.session import add_common_arguments, stop_on_signals
 from viena.recording import ReceiveClock, RecordingError, RecordingWriter, human_bytes, repair
-from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions
+from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions, tool_logging
 
 log = logging.getLogger("viena.record")
 PROGRESS_PERIOD_S = 0.5
@@ -184,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
+    tool_logging(args)
     if args.repair is not None:
         return _repair(args)
     link = Connection(args)

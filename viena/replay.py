@@ -20,10 +20,9 @@ from dataclasses import dataclass, field
 
 from viena.common.errors import InputError
 from viena.common.keys import ROOT, Keys
-from viena.common.log import setup_logging
 from viena.common.session import add_common_arguments, stop_on_signals
 from viena.recording import KeyFilter, Recorded, Recording
-from viena.tool import Connection, Fail, add_timeout_flag, guarded, key_expressions
+from viena.tool import Connection, Fail, add_timeout_flag, guarded, key_expressions, tool_logging
 
 log = logging.getLogger("viena.replay")
 EARLY_S = 0.0002
@@ -192,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
+    tool_logging(args)
     try:
         if args.rate < 0:
             raise InputError(f"--rate must be >= 0, got {args.rate}")

@@ -15,11 +15,10 @@ import sys
 import time
 
 from viena.common.errors import InputError
-from viena.common.log import setup_logging
 from viena.common.payload import is_json_text, to_jsonable
 from viena.common.schema import schema_of, unpack
 from viena.common.session import add_common_arguments, stop_on_signals
-from viena.tool import CONNECT_TIMEOUT_S, Connection, SilenceWarning, guarded, key_expressions
+from viena.tool import CONNECT_TIMEOUT_S, Connection, SilenceWarning, guarded, key_expressions, tool_logging
 
 MISSING = object()
 
@@ -83,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
+    tool_logging(args)
     link = Connection(args)
     [keyexpr] = key_expressions([args.keyexpr or link.keys.all])
     stop = stop_on_signals()

@@ -16,6 +16,7 @@ from collections.abc import Callable
 
 from viena.common.errors import InputError
 from viena.common.keys import Keys
+from viena.common.log import setup_logging
 from viena.common.session import Unreachable, car_name, check_keyexpr, load_settings_file, open_session, zenoh_config
 
 #: how long a subscription may hear nothing before the tool says so
@@ -38,6 +39,12 @@ def guarded(prog: str, body: Callable[[argparse.Namespace], int], args: argparse
     except Fail as exc:
         print(f"{prog}: {exc}", file=sys.stderr, flush=True)
         return exc.status
+
+
+def tool_logging(args: argparse.Namespace) -> None:
+    """A tool's output is what it prints: the default level (INFO) logs warnings only, so
+    the session's own INFO lines never mix with it; --log-level DEBUG still shows all."""
+    setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
 
 
 def add_timeout_flag(parser: argparse.ArgumentParser, default_s: float = CONNECT_TIMEOUT_S) -> None:

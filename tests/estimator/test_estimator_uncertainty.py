@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from estimator_helpers import generate, settings_for
 
+from benchmarks.estimator import nees_h, states_of
 from benchmarks.simdrive import Drive
 from viena.services.estimator.gnss_noise import WhiteShare
 from viena.services.estimator.kalman import KalmanNoise, NavKalman
@@ -32,22 +33,8 @@ def coverage(drive: Drive, every: int = 8):
     if drive.second_antenna_m is not None:
         arms["gnss1"] = list(drive.second_antenna_m)
     est = Estimator(settings_for(drive, origin, gnss_lever_arm_m=arms))
-    nees, n = [], 0
-    for kind, sample, truth in samples:
-        if kind == "gnss":
-            est.add_gnss(sample)
-            continue
-        est.add_imu(sample)
-        n += 1
-        if n % every:
-            continue
-        s = est.state()
-        if not s["position_valid"]:
-            continue
-        ee, en, _, nn, _, _ = s["enu_cov_m2"]
-        e = np.subtract(s["enu_m"], truth.enu_m)[:2]
-        nees.append(float(e @ np.linalg.solve([[ee, en], [en, nn]], e)))
-    nees = np.array(nees)
+    nees = np.array([nees_h(s, np.subtract(s["enu_m"], truth.enu_m)[:2])
+                     for s, truth in states_of(est, samples, every)])
     return float(np.mean(nees <= CHI2_2D_95)), float(np.mean(nees)), est
 
 
