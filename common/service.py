@@ -31,6 +31,7 @@ from viena.common.errors import ConfigError, SampleError
 from viena.common.health import HEALTH, Health
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
+from viena.common.payload import reply_bytes
 from viena.common.schema import Schema
 from viena.common.session import add_common_arguments, car_name, load_settings_file, open_session, zenoh_config
 from viena.common.settings import add_flags, given_flags, load, specs
@@ -40,6 +41,22 @@ HEALTH_PERIOD_S = 1.0
 #: how long the router may take to say whether our liveliness token is taken already
 DUPLICATE_QUERY_S = 2.0
 
+
+
+def query_payload(query) -> tuple[bytes, str | None]:
+    """A command query's payload and its encoding (empty and None when it carries none)."""
+    data = query.payload.to_bytes() if query.payload is not None else b""
+    encoding = str(query.encoding) if query.encoding is not None else None
+    return data, encoding
+
+
+def reply_to(query, answer: dict, encoding: str | None, data: bytes, key: str | None = None) -> None:
+    """Answer a command query in the encoding it was asked in (JSON for people, msgpack for
+    programs), on `key` (a wildcard query is answered on the key that describes itself)."""
+    import zenoh
+
+    payload, reply_encoding = reply_bytes(answer, encoding, data)
+    query.reply(key or query.key_expr, payload, encoding=zenoh.Encoding(reply_encoding))
 
 class Publisher:
     """Publishes samples of one schema on one key; a sample that fails its check is

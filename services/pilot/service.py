@@ -33,9 +33,9 @@ import zenoh
 
 from viena.common.errors import ConfigError, InputError, PayloadError
 from viena.common.log import Throttled
-from viena.common.payload import parse_payload, reply_bytes
+from viena.common.payload import parse_payload
 from viena.common.schema import unpack
-from viena.common.service import Service, run_service
+from viena.common.service import Service, query_payload, reply_to, run_service
 from viena.common.session import zenoh_config
 from viena.common.settings import part, setting
 from viena.services.pilot.model.estimate import estimate_of
@@ -144,10 +144,9 @@ class PilotService(Service):
 
     def _on_query(self, kind: str, own_key: str):
         def on_query(query: zenoh.Query) -> None:
-            data = query.payload.to_bytes() if query.payload is not None else b""
-            encoding = str(query.encoding) if query.encoding is not None else None
+            data, encoding = query_payload(query)
             if str(query.key_expr) != own_key:            # a wildcard query: never a command
-                self._reply(query, {"status": "description", "key": own_key, "usage": USAGE[kind]},
+                reply_to(query, {"status": "description", "key": own_key, "usage": USAGE[kind]},
                             encoding, data, own_key)
                 return
             self._queue((kind, (data, encoding), query))
@@ -163,11 +162,6 @@ class PilotService(Service):
             self._events.put_nowait(event)
         except queue.Full:
             self.health.error("queue_full")
-
-    @staticmethod
-    def _reply(query, answer: dict, encoding: str | None, data: bytes, key=None) -> None:
-        payload, reply_encoding = reply_bytes(answer, encoding, data)
-        query.reply(key or query.key_expr, payload, encoding=zenoh.Encoding(reply_encoding))
 
     # -- the control thread ---------------------------------------------------------------------------
     def _run(self) -> None:
@@ -347,7 +341,7 @@ class PilotService(Service):
             self.health.error(f"{kind}_rejected")
             self._refusals.log(kind, f"{kind} refused: {answer['reason']}")
         if query is not None:
-            self._reply(query, answer, encoding, data)
+            reply_to(query, answer, encoding, data)
 
     def _route(self, data: bytes, encoding: str | None) -> dict:
         if not data:

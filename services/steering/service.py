@@ -29,8 +29,8 @@ import zenoh
 
 from viena.common.errors import PayloadError
 from viena.common.log import Throttled
-from viena.common.payload import parse_payload, reply_bytes
-from viena.common.service import Service, run_service
+from viena.common.payload import parse_payload
+from viena.common.service import Service, query_payload, reply_to, run_service
 from viena.common.settings import part
 from viena.services.steering.controller import ControllerSettings, SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
@@ -87,15 +87,15 @@ class SteeringService(Service):
     # -- zenoh callbacks: decode, decide, never wait ----------------------------------------
     def _command(self, kind: str, own_key: str):
         def on_query(query: zenoh.Query) -> None:
-            data, encoding = _payload_of(query)
+            data, encoding = query_payload(query)
             if str(query.key_expr) != own_key:
                 self.health.count("discovery_queries")
-                _reply(query, describe(kind, own_key), encoding, data, own_key)
+                reply_to(query, describe(kind, own_key), encoding, data, own_key)
                 return
             self.health.count(kind)
             payload = self._parse(kind, data, encoding, query)
             if payload is not None:
-                self.controller.submit(kind, payload, lambda answer: _reply(query, answer, encoding, data))
+                self.controller.submit(kind, payload, lambda answer: reply_to(query, answer, encoding, data))
         return on_query
 
     def _parse(self, kind: str, data: bytes, encoding: str | None, query=None) -> dict | None:
@@ -108,7 +108,7 @@ class SteeringService(Service):
             self.health.error("bad_payload")
             self._refusals.log(f"{kind}: {str(exc).split(':')[0]}", str(exc))
             if query is not None:
-                _reply(query, {"status": REJECTED, "reason": str(exc)}, encoding, data)
+                reply_to(query, {"status": REJECTED, "reason": str(exc)}, encoding, data)
             return None
 
     def _setpoint_put(self, sample: zenoh.Sample) -> None:
@@ -118,14 +118,14 @@ class SteeringService(Service):
             self.controller.submit("setpoint", payload, None)
 
     def _estop_query(self, query: zenoh.Query) -> None:
-        data, encoding = _payload_of(query)
+        data, encoding = query_payload(query)
         own = self.keys.key("steering", "estop")
         if str(query.key_expr) != own:
             self.health.count("discovery_queries")
-            _reply(query, describe("estop", own), encoding, data, own)
+            reply_to(query, describe("estop", own), encoding, data, own)
             return
         if self._parse("estop", data, encoding, query) is not None:
-            _reply(query, self.controller.estop(), encoding, data)
+            reply_to(query, self.controller.estop(), encoding, data)
 
     def _estop_put(self, sample: zenoh.Sample) -> None:
         if self._parse("estop", sample.payload.to_bytes(), str(sample.encoding)) is not None:
@@ -137,18 +137,6 @@ class SteeringService(Service):
             self.health.mark_sample()
         self.health.set("phase", state["phase"])
         self.health.set("armed", state["armed"])
-
-
-def _payload_of(query: zenoh.Query) -> tuple[bytes, str | None]:
-    data = query.payload.to_bytes() if query.payload is not None else b""
-    encoding = str(query.encoding) if query.encoding is not None else None
-    return data, encoding
-
-
-def _reply(query: zenoh.Query, answer: dict, encoding: str | None, data: bytes,
-           key: str | None = None) -> None:
-    payload, reply_encoding = reply_bytes(answer, encoding, data)
-    query.reply(key or query.key_expr, payload, encoding=zenoh.Encoding(reply_encoding))
 
 
 COMMANDS = {
