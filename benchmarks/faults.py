@@ -246,7 +246,7 @@ def bad_inputs(imu_sample: dict) -> list[tuple[str, str, str, bytes, int]]:
         ("absurd setpoint", "steering/setpoint", "get", json.dumps({"angle_deg": 1e308, "lease": "x"}).encode(), 100),
         ("invalid UTF-8", "steering/arm", "get", b"{\"arm\": \"\xff\xfe\"}", 100),
         ("discovery query", "**", "get", b"", 20),
-        ("900 kB waypoint", "estimator/waypoint", "put", b'{"lat": "' + b"9" * 900_000 + b'"}', 20),
+        ("900 kB route", "pilot/route", "put", b'{"type": "LineString", "coordinates": "' + b"9" * 900_000 + b'"}', 20),
         ("garbage IMU sample", "imu/razor0/sample", "put", b"\xc1" * 64, 200),
         ("absurd IMU sample", "imu/razor0/sample", "put", msgpack.packb(absurd_imu), 200),
         ("future IMU sample", "imu/razor0/sample", "put", msgpack.packb(future_imu), 5),

@@ -2,7 +2,7 @@
 
 - recorder throughput: the highest sample rate `viena record` keeps without losing one
   (goal >= 10x the car's total rate: truth 100 Hz, 2 GNSS x 20 Hz, IMU 82.5 Hz,
-  steering 50 Hz, estimator 82.5 Hz, and a health per second from each service);
+  steering 50 Hz, estimator 82.5 Hz, pilot 20 Hz, and a health per second from each service);
 - replay timing error at 1x: when each replayed sample arrives at a subscriber, against
   its recorded log time (goal p99 <= 2 ms);
 - monitor CPU, rendering on a terminal with the whole car live (goal < 10 % of a core).
@@ -42,8 +42,9 @@ STREAMS = [
     ("imu/razor0/sample", 82.5, "imu", "viena.imu.sample/1"),
     ("steering/state", 50.0, "steering", "viena.steering.state/1"),
     ("estimator/state", 82.5, "estimator", "viena.estimator.state/2"),
+    ("pilot/state", 20.0, "pilot", "viena.pilot.state/1"),
 ] + [(f"{service}/health", 1.0, "health", "viena.health/1")
-     for service in ("sim", "gnss/gnss0", "gnss/gnss1", "imu/razor0", "steering", "estimator")]
+     for service in ("sim", "gnss/gnss0", "gnss/gnss1", "imu/razor0", "steering", "estimator", "pilot")]
 CAR_RATE_HZ = sum(rate for _, rate, _, _ in STREAMS)
 
 
@@ -82,8 +83,14 @@ def _samples(kind: str) -> dict:
                       "roll_rad": 0.0, "att_var_rad2": [1e-4] * 3, "rate_body_radps": v3,
                       "accel_bias_mps2": v3, "gyro_bias_radps": v3, "gnss_used": 100,
                       "gnss_rejected": {}, "input_rejected": {}, "counts": {"imu": 1000},
-                      "last_reset": None, "waypoint": None, "wp_bearing_deg": None,
-                      "wp_distance_m": None, "wp_heading_error_deg": None},
+                      "last_reset": None},
+        "pilot": {"mode": "following", "reason": None, "controller": "pure_pursuit", "armed": True,
+                  "route_points": 41, "route_length_m": 155.2, "checkpoint": 12,
+                  "checkpoint_distance_m": 2.7, "checkpoint_bearing_deg": 88.1,
+                  "checkpoint_heading_error_deg": -1.9, "progress_m": 43.5, "progress": 0.28,
+                  "cross_track_m": 0.04, "heading_error_deg": -0.8, "wheel_cmd_deg": 6.2,
+                  "lookahead_m": 5.4, "target_enu_m": [12.9, 20.3], "route_speed_mps": None,
+                  "estimate_age_s": 0.012, "setpoints": 2150},
         "health": {"service": "x", "unit": None, "uptime_s": 10.0, "rates_hz": {"sample": 82.5},
                    "counts": {"sample": 825}, "errors": {}, "last_sample_age_s": 0.01, "state": {}},
     }[kind]

@@ -11,8 +11,11 @@ Prints, for pure pursuit and Stanley:
 - the pilot's CPU at 50 Hz: the model's time per tick (projection, tracker, checks, state
   sample), as a share of one core;
 - live (unless --no-live): the sim profile with viena-pilot at 50 Hz, once round the loop
-  through the estimator at the sim person's 3-5 m/s: cross-track against the truth, with
-  the estimate's own error beside it, and the pilot process's CPU while following.
+  through the estimator at each of --live-speeds (the sim person drives it), with the car's
+  single-point receivers and with RTK-grade ones: cross-track against the truth, with
+  the estimate's own error beside it; the pilot process's CPU while following; and the
+  latency from an estimator state to its setpoint on the drive's CAN bus (watched by a
+  listen-only slcan client, as a CAN monitor would).
 """
 from __future__ import annotations
 
@@ -227,13 +230,14 @@ class LiveLoop:
         with self._lock:
             self.estimate_errors.clear()
             self.estimate_ages_s.clear()
-        errors, near, t0 = [], None, time.monotonic()
+        errors, near, t0, started_ns = [], None, time.monotonic(), time.time_ns()
         miss = np.full(len(path.points), np.inf)
         while time.monotonic() < end:
             truth = self.truth()
             state = self.state()
-            if state.get("mode") not in ("following", None) and state.get("t", 0) > truth["t"]:
-                break
+            ended = state.get("mode") != "following" and state.get("t", 0) > started_ns
+            if ended and truth["t"] >= state["t"]:
+                break                   # the drive ended: later truths are not the pilot's
             if during is not None:
                 during(time.monotonic() - t0)
             x, y = truth["enu_m"][0], truth["enu_m"][1]
@@ -287,6 +291,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cpu-seconds", type=float, default=3.0, help="how long to time the ticks")
     p.add_argument("--no-live", dest="live", action="store_false",
                    help="skip the live part (the sim profile and viena-pilot as processes)")
+    p.add_argument("--live-speeds", type=float, nargs="+", default=[3.0, 5.0, 8.0], metavar="MPS",
+                   help="the sim person's speeds for the live part (each a drive per GNSS grade)")
     args = p.parse_args(argv)
     print("pilot: cross-track error against the truth round the 40 m x 24 m loop "
           "(in-process bicycle, 50 Hz, 30 deg/s slew)")
@@ -300,32 +306,76 @@ def main(argv: list[str] | None = None) -> int:
     print(f"pilot: one tick + state sample {cost * 1e6:.0f} us: at 50 Hz "
           f"{cost * 50 * 100:.2f} % of a core (goal < 5 %)", flush=True)
     if args.live:
-        live()
+        for speed in args.live_speeds:
+            for grade, cep_m in (("the car's single-point receivers (CEP 1.8 m)", None),
+                                 ("RTK-grade receivers (CEP 5 cm)", 0.05)):
+                live(grade, cep_m, speed)
     return 0
 
 
-def live() -> None:
+def put_to_bus_s(puts: list[float], frames: list[tuple[float, int, int]]) -> list[float]:
+    """For each setpoint put (perf_counter when seen), the wait until the first RPDO on the
+    bus after it whose target differs from the one before it: when the new angle reached
+    the drive. Puts that changed nothing on the bus (the same target, or superseded by the
+    next put before the next frame) are left out."""
+    import bisect
+
+    times = [t for t, _, _ in frames]
+    out = []
+    for k, t_put in enumerate(puts):
+        i = bisect.bisect_right(times, t_put)
+        if i == 0 or i >= len(frames):
+            continue
+        before = frames[i - 1][2]
+        next_put = puts[k + 1] if k + 1 < len(puts) else float("inf")
+        for t, _, target in frames[i:i + 5]:
+            if t >= next_put:
+                break
+            if target != before:
+                out.append(t - t_put)
+                break
+    return out
+
+
+def live(grade: str, cep_m: float | None, speed_mps: float) -> None:
     """The sim profile with viena-pilot at 50 Hz setpoints: once round the loop through the
-    estimator, and the pilot process's CPU while it follows."""
+    estimator at `speed_mps`, with the sim's receivers at `cep_m` (None: their own), and the
+    pilot process's CPU while it follows."""
+    import json
+    import os
     import tempfile
     import threading
     from pathlib import Path as FsPath
 
     import zenoh
 
+    from benchmarks.faults import supervisor
     from benchmarks.harness import cpu_share, processes
     from benchmarks.security import sim_car
+    from benchmarks.steering import BusWatch
     from viena.common.config import load_zenoh_config
     from viena.common.health import HEALTH
 
+    for name in ("VIENA_SIM_SPEED_MIN_MPS", "VIENA_SIM_SPEED_MAX_MPS"):      # compose/sim.toml [sim.car]
+        os.environ[name] = str(speed_mps)
+    if cep_m is not None:
+        os.environ["VIENA_SIM_GNSS_CEP_M"] = str(cep_m)       # compose/sim.toml [sim.gnss*] cep_m
+    else:
+        os.environ.pop("VIENA_SIM_GNSS_CEP_M", None)
     with tempfile.TemporaryDirectory(prefix="viena-bench-pilot-") as tmp, \
             sim_car("tcp", FsPath(tmp)) as (env, endpoint), processes() as start:
         # staleness at 1 s, not 200 ms: on a loaded 2-core machine running the whole car a
         # state can arrive late (the ages are printed); the 200 ms stop is tested elsewhere
+        supervisor(env).stopProcess("pilot")        # the profile's own (idle) pilot makes way
         pilot = start("-m", "viena.services.pilot.service", "--connect", endpoint, "--setpoint-rate-hz", "50",
                       "--max-estimate-age-s", "1.0", env=env)
         session = zenoh.open(load_zenoh_config(mode="client", connect=[endpoint]))
         loop = LiveLoop(session)
+        ports = json.loads((FsPath(env["VIENA_RUN"]) / "env.json").read_text())
+        bus = BusWatch(f"socket://127.0.0.1:{ports['VIENA_EPOS_PORT']}")     # a CAN monitor on the drive's bus
+        puts: list[float] = []                        # when each of the pilot's setpoints went by
+        puts_sub = session.declare_subscriber("viena/elettra/steering/setpoint",
+                                              lambda _s: puts.append(time.perf_counter()))
         health: dict = {}
         health_sub = session.declare_subscriber(
             "viena/elettra/pilot/health", lambda s: health.update(HEALTH.decode(s.payload.to_bytes())
@@ -347,9 +397,12 @@ def live() -> None:
             time.sleep(1.5)                                   # the health sample after the drive
         finally:
             health_sub.undeclare()
+            puts_sub.undeclare()
             loop.close()
             session.close()
-        print(f"pilot live on the sim profile, estimator in the loop, the sim's person driving 3-5 m/s, "
+            bus.close()
+        print(f"pilot live on the sim profile with {grade}, estimator in the loop, "
+              f"the sim's person driving {speed_mps:g} m/s, "
               f"50 Hz setpoints: {drive.mode} ({drive.reason}) in {drive.seconds:.1f} s")
         print(f"  cross-track against the truth: {drive.figures()}; worst checkpoint "
               f"{drive.checkpoint_miss_m.max():.2f} m")
@@ -360,9 +413,16 @@ def live() -> None:
                   f"max_estimate_age_s, 200 ms by default; 1 s here)")
         latency = health.get("estimate_to_setpoint_ms")
         if latency:
-            print(f"  estimator state in -> the setpoint made from it sent (put): "
-                  f"p50 {latency['p50']:.1f} ms, p99 {latency['p99']:.1f} ms (then to the bus: "
-                  f"`viena bench steering`)")
+            print(f"  estimator state's stamp -> the setpoint made from it put (the pilot's health): "
+                  f"p50 {latency['p50']:.1f} ms, p99 {latency['p99']:.1f} ms")
+        to_bus = np.array(put_to_bus_s(puts, bus.frames)) * 1e3
+        if len(to_bus):
+            print(f"  setpoint put -> the drive's RPDO with a new target on the CAN bus: "
+                  f"p50 {np.percentile(to_bus, 50):.1f} ms, p99 {np.percentile(to_bus, 99):.1f} ms "
+                  f"(n={len(to_bus)}; the steering sends a setpoint's RPDO as it decides it)")
+            if latency:
+                print(f"  so estimator state -> CAN bus: p50 about {latency['p50'] + np.percentile(to_bus, 50):.1f} "
+                      f"ms, p99 at most {latency['p99'] + np.percentile(to_bus, 99):.1f} ms")
         if len(cpu) > 1:
             print(f"  viena-pilot CPU while following: {cpu[-1] * 100:.1f} % of a core (goal < 5 %)")
 

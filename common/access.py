@@ -53,7 +53,7 @@ ROLES: dict[str, Role] = {
                      receive=("steering/setpoint", "steering/estop"), token=("alive/steering",)),
     "estimator": Role("the estimator: reads the devices, publishes the car's state",
                       publish=("estimator/**",),
-                      subscribe=("gnss/*/fix", "imu/*/sample", "estimator/waypoint"),
+                      subscribe=("gnss/*/fix", "imu/*/sample"),
                       token=("alive/estimator",)),
     "sim": Role("the simulated car: publishes its ground truth; its simulated person reads the "
                 "steering's state (to sweep the wheel when asked)",
@@ -66,8 +66,7 @@ ROLES: dict[str, Role] = {
     "pilot": Role("a person or program allowed to drive: arms, steers, calibrates, stops; sends "
                   "the autopilot its route and start/stop",
                   subscribe=("**",), command=(*STEERING_COMMANDS, "pilot/route", "pilot/cmd"),
-                  publish=("steering/setpoint", "steering/estop", "estimator/waypoint", "pilot/route",
-                           "pilot/cmd"),
+                  publish=("steering/setpoint", "steering/estop", "pilot/route", "pilot/cmd"),
                   token=("alive/pilot/{name}",), liveliness=True),
     "observer": Role("anyone else on the car: watches everything and may stop the car",
                      subscribe=("**",), publish=("steering/estop",), liveliness=True),

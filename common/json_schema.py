@@ -62,6 +62,8 @@ def field_schema(check: Check) -> dict | None:
         n = made["n"]
         return {"type": "array", "items": {"type": "number"}, "minItems": n, "maxItems": n}
     if kind == "list":
+        if is_optional(made["item"]):       # [1.0, null, ...]: no one plain item type (left untyped)
+            return None
         item = field_schema(made["item"])
         return {"type": "array", "items": item} if item is not None else None
     if kind == "enum":

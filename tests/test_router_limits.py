@@ -7,18 +7,32 @@ from __future__ import annotations
 import threading
 import time
 
+import json5
 import pytest
 import zenoh
 
+from viena.common.access import ROLES
 from viena.common.config import load_zenoh_config
-
-pytestmark = pytest.mark.slow
+from viena.paths import compose_dir
 
 KEY = "viena/elettra/steering/setpoint"
 #: the limit router.json5 sets per client and command key
 LIMIT_HZ = 200.0
 
 
+def test_the_router_limits_exactly_the_keys_services_take_commands_on_as_puts():
+    """The keys a role receives as puts (common/access.py) are the commands a flood could
+    aim at; the router limits those and no others (a key dropped from the roles goes from
+    the limits too)."""
+    conf = json5.loads((compose_dir() / "zenoh" / "router.json5").read_text())
+    [commands] = [d for d in conf["downsampling"] if d["id"] == "commands"]
+    assert commands["flows"] == ["ingress"] and set(commands["messages"]) == {"put", "delete"}
+    limited = {rule["key_expr"] for rule in commands["rules"]}
+    assert limited == {f"viena/*/{key}" for role in ROLES.values() for key in role.receive}
+    assert {rule["freq"] for rule in commands["rules"]} == {LIMIT_HZ}
+
+
+@pytest.mark.slow
 def test_a_setpoint_flood_from_one_client_is_cut_to_the_limit_and_another_client_still_passes(router, session):
     heard: dict[bytes, int] = {}
     lock = threading.Lock()

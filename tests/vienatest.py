@@ -73,11 +73,12 @@ def viena(*args, timeout: float = 60, **kw) -> subprocess.CompletedProcess:
 
 
 @contextmanager
-def sim_profile_up(run: Path):
+def sim_profile_up(run: Path, **environment: str):
     """The `sim` profile under supervisord (`viena up -d --free-ports`), its run directory
-    `run`: yields (environment, router endpoint) once the router listens (supervisord calls
-    a program RUNNING before that), and brings the profile down at the end."""
-    env = dict(os.environ, VIENA_RUN=str(run))
+    `run`, with `environment` added to its programs' (the profile's ${VAR} settings):
+    yields (environment, router endpoint) once the router listens (supervisord calls a
+    program RUNNING before that), and brings the profile down at the end."""
+    env = dict(os.environ, VIENA_RUN=str(run), **environment)
     env.pop("VIENA_ROUTER_PORT", None)
     up = viena("up", "--profile", "sim", "-d", "--free-ports", env=env, timeout=120)
     try:

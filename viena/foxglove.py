@@ -6,8 +6,9 @@ other laptop tools) and serves it with the Foxglove SDK's WebSocket server: open
 JSON channel whose JSON Schema comes from viena's own schema, so any numeric field can be
 plotted; GNSS receivers, the estimator and the simulated truth are also
 `foxglove.LocationFix` (Map panel), `PoseInFrame` and `FrameTransform` (3D panel, frames
-`enu` -> `car`, `car_truth`), and services' health errors become `foxglove.Log`
-(viena/foxglove_messages.py has the table).
+`enu` -> `car`, `car_truth`), services' health errors become `foxglove.Log`, and the
+route the pilot holds (pilot/path) is `foxglove.GeoJSON` (Map panel) and a SceneUpdate
+line in `enu` (3D panel) (viena/foxglove_messages.py has the table).
 
 The one thing a client may send is the emergency stop: a service `estop` (Foxglove's
 Service Call panel) that puts on `viena/<car>/steering/estop`, offered only when this

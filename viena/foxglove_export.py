@@ -5,9 +5,10 @@ viena's own recordings keep each sample's msgpack bytes (exact replay), which Fo
 refuses ("unsupported encoding"). These files hold, written by the Foxglove SDK's MCAP
 writer, the same samples as `json` messages on `jsonschema` channels (schemas generated
 from viena's own: common/json_schema.py) plus the Foxglove messages they make
-(LocationFix per receiver and for the estimator, PoseInFrame, FrameTransform, Log:
-viena/foxglove_messages.py), each at its log time. Samples that fail their schema are
-counted and left out. A file is written as `<name>.part` and takes its name once complete.
+(LocationFix per receiver and for the estimator, PoseInFrame, FrameTransform, Log, the
+pilot's route as GeoJSON and SceneUpdate: viena/foxglove_messages.py), each at its log
+time. Samples that fail their schema are counted and left out. A file is written as
+`<name>.part` and takes its name once complete.
 """
 from __future__ import annotations
 

@@ -13,12 +13,18 @@ something Foxglove's panels understand (`Converter.derived`), under `viena/<car>
 | `sim/truth` | `foxglove/sim/truth/location`, `.../pose` | as above |
 | `estimator/state`, `sim/truth` | `foxglove/tf` | `foxglove.FrameTransform` `enu` -> `car`, `enu` -> `car_truth` |
 | `<service>/health` | `foxglove/log` | `foxglove.Log`, when an error counter grows |
+| `pilot/path` | `foxglove/pilot/route` | `foxglove.GeoJSON`: the route's line and its checkpoints |
+| `pilot/path` | `foxglove/pilot/scene` | `foxglove.SceneUpdate`: the route as a line in frame `enu` |
 
 Frames: `enu` is viena's local ENU world (x East, y North, z Up) at the estimator's or the
 simulator's origin (the same configured origin on the car); `car` and `car_truth` are the
 body frame (x right, y forward, z up), so Foxglove's 3D panel shows the car's axes as
 viena defines them. LocationFix covariances are ENU, row-major, m^2; headings are
 radians clockwise from north (viena's yaw is counter-clockwise: heading = -yaw).
+
+The route's line in `enu` needs the estimator's origin (the pilot works in the estimator's
+ENU): it is taken from the estimator states converted before, so the route's first
+SceneUpdate comes with the first `pilot/path` after one (the pilot sends it every 5 s).
 """
 from __future__ import annotations
 
@@ -28,16 +34,25 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+import pymap3d
 from foxglove.messages import (
     Color,
     FrameTransform,
+    GeoJson,
+    LinePrimitive,
+    LinePrimitiveLineType,
     LocationFix,
     LocationFixPositionCovarianceType,
     Log,
     LogLevel,
+    Point3,
     Pose,
     PoseInFrame,
     Quaternion,
+    SceneEntity,
+    SceneUpdate,
+    SpherePrimitive,
     Timestamp,
     Vector3,
 )
@@ -51,13 +66,15 @@ from viena.recording import decode_value
 #: the modules that own the car's schemas: importing them registers the schemas by name
 SCHEMA_OWNERS = ("viena.services.gnss.model.fix", "viena.services.imu.model.sample",
                  "viena.services.steering.model.state", "viena.services.estimator.state",
-                 "viena.services.sim.model.truth", "viena.common.health")
+                 "viena.services.sim.model.truth", "viena.services.pilot.model.state",
+                 "viena.common.health")
 for _owner in SCHEMA_OWNERS:
     importlib.import_module(_owner)
 
 from viena.common.health import HEALTH  # noqa: E402  (after the owners, for one import list)
 from viena.services.estimator.state import STATE  # noqa: E402
 from viena.services.gnss.model.fix import FIX, NO_FIX_ECEF  # noqa: E402
+from viena.services.pilot.model.state import PATH  # noqa: E402
 from viena.services.sim.model.truth import TRUTH  # noqa: E402
 
 WORLD_FRAME = "enu"
@@ -68,6 +85,15 @@ ESTIMATOR_COLOUR = Color(r=0.84, g=0.15, b=0.16, a=1.0)
 TRUTH_COLOUR = Color(r=0.0, g=0.0, b=0.0, a=1.0)
 GNSS_COLOURS = [Color(r=0.12, g=0.47, b=0.71, a=1.0), Color(r=0.17, g=0.63, b=0.17, a=1.0),
                 Color(r=0.58, g=0.40, b=0.74, a=1.0), Color(r=1.0, g=0.50, b=0.05, a=1.0)]
+#: the route: on the map (a Leaflet style, as Foxglove's Map panel takes it) and in 3D
+ROUTE_COLOUR = Color(r=0.9, g=0.0, b=0.49, a=1.0)
+ROUTE_STYLE = {"color": "#e6007e", "weight": 4, "opacity": 0.9}
+CHECKPOINT_STYLE = {"color": "#e6007e"}
+ROUTE_ENTITY = "route"
+#: a route of more checkpoints than this (one recorded while driving, a point every few
+#: metres) marks only its first and last: hundreds of pins would hide the map
+MAX_CHECKPOINT_MARKS = 100
+CHECKPOINT_SIZE_M = 0.6
 #: a receiver's local frame (for its velocity and covariance in ENU) is made anew this far away
 FRAME_REUSE_M = 1000.0
 
@@ -95,8 +121,8 @@ class Route:
 @dataclass(frozen=True)
 class Derived:
     """A Foxglove message derived from a sample: its topic, its kind (`LocationFix`,
-    `PoseInFrame`, `FrameTransform`, `Log`: the name of its foxglove.channels class
-    without `Channel`), and the message."""
+    `PoseInFrame`, `FrameTransform`, `Log`, `GeoJson`, `SceneUpdate`: the name of its
+    foxglove.channels class without `Channel`), and the message."""
 
     topic: str
     kind: str
@@ -122,13 +148,15 @@ def json_bytes(value: Any) -> bytes:
 class Converter:
     """viena samples -> Foxglove messages, for any car (its topics under its own
     `viena/<car>/foxglove/`). Keeps what a conversion needs from earlier samples: each
-    service's error counts (to log what grew), each receiver's local frame."""
+    service's error counts (to log what grew), each receiver's local frame, the
+    estimator's origin (for the route in `enu`)."""
 
     def __init__(self):
         self._forms: dict[str, JsonForm] = {}
         self._errors: dict[str, dict[str, int]] = {}
         self._frames: dict[str, LocalFrame] = {}
         self._colours: dict[str, Color] = {}
+        self._origin: tuple[float, float, float] | None = None
 
     def route(self, key: str, encoding: str) -> Route:
         """How samples of this key and encoding are converted (worked out once per key)."""
@@ -149,6 +177,8 @@ class Converter:
             topics = [(f"{root}/sim/truth/location", "LocationFix"), (f"{root}/sim/truth/pose", "PoseInFrame"), tf]
         elif kind == "health":
             topics = [(f"{root}/log", "Log")]
+        elif kind == "path":
+            topics = [(f"{root}/pilot/route", "GeoJson"), (f"{root}/pilot/scene", "SceneUpdate")]
         return Route(key, encoding, schema, kind if topics else "", topics, form)
 
     @staticmethod
@@ -167,7 +197,12 @@ class Converter:
             fix = self.gnss_location(sample, topics[0][0].split("/")[-2])
             return [] if fix is None else [Derived(topics[0][0], "LocationFix", fix)]
         if kind == "estimator":
-            return self._pose_messages(sample, topics, CAR_FRAME, valid=sample.get("position_valid") is True)
+            valid = sample.get("position_valid") is True
+            if valid and sample.get("origin") is not None:
+                self._origin = tuple(sample["origin"])
+            return self._pose_messages(sample, topics, CAR_FRAME, valid=valid)
+        if kind == "path":
+            return self._route_messages(sample, topics)
         if kind == "truth":
             return self._pose_messages(sample, topics, TRUTH_FRAME, valid=True)
         return [Derived(topics[0][0], "Log", log) for log in self.health_logs(route.key, sample)]
@@ -234,6 +269,16 @@ class Converter:
                            velocity=_vector(s["vel_enu_mps"]),
                            color=TRUTH_COLOUR if frame == TRUTH_FRAME else ESTIMATOR_COLOUR)
 
+    def _route_messages(self, path: dict, topics: list[tuple[str, str]]) -> list[Derived]:
+        """The route on the map and, once the estimator's origin is known, in `enu`;
+        nothing for a path that is no line (the pilot sends none such)."""
+        if len(path["lat_deg"]) != len(path["lon_deg"]) or len(path["lat_deg"]) < 2:
+            return []
+        out = [Derived(topics[0][0], "GeoJson", route_geojson(path))]
+        if self._origin is not None:
+            out.append(Derived(topics[1][0], "SceneUpdate", route_scene(path, self._origin)))
+        return out
+
     def health_logs(self, key: str, health: dict) -> list[Log]:
         """A Log for each error counter of a service that grew since its last health
         (and, the first time a service is heard, for the errors it had already)."""
@@ -256,8 +301,54 @@ class Converter:
         return logs
 
 
+def _marked_checkpoints(count: int) -> list[int]:
+    """Which checkpoints get a mark of their own: all, or of a long route the ends."""
+    return list(range(count)) if count <= MAX_CHECKPOINT_MARKS else [0, count - 1]
+
+
+def route_geojson(path: dict) -> GeoJson:
+    """A viena.pilot.path/1 sample as GeoJSON for Foxglove's Map panel: a LineString
+    through the checkpoints and a Point per checkpoint, named as Foxglove labels them
+    (`properties.name`), coordinates [lon, lat] as GeoJSON orders them."""
+    lats, lons, speeds = path["lat_deg"], path["lon_deg"], path["speeds_mps"]
+    line = {"type": "Feature",
+            "properties": {"name": f"route: {len(lats)} checkpoints, {path['length_m']:.0f} m",
+                           "style": ROUTE_STYLE},
+            "geometry": {"type": "LineString", "coordinates": [[lon, lat] for lat, lon in zip(lats, lons)]}}
+    features = [line]
+    last = len(lats) - 1
+    for i in _marked_checkpoints(len(lats)):
+        name = f"checkpoint {i}" + (" (start)" if i == 0 else " (end)" if i == last else "")
+        if i < len(speeds) and speeds[i] is not None:
+            name += f", {speeds[i]:.1f} m/s"
+        features.append({"type": "Feature", "properties": {"name": name, "style": CHECKPOINT_STYLE},
+                         "geometry": {"type": "Point", "coordinates": [lons[i], lats[i]]}})
+    return GeoJson(geojson=json.dumps({"type": "FeatureCollection", "features": features},
+                                      separators=(",", ":"), allow_nan=False))
+
+
+def route_scene(path: dict, origin: tuple[float, float, float]) -> SceneUpdate:
+    """The route as a line (and its checkpoints as spheres) in frame `enu` at the
+    estimator's origin, on the origin's level plane (checkpoints have no height), as the
+    pilot sees it (services/pilot/model/path.py). One entity, replaced by the next."""
+    lat = np.asarray(path["lat_deg"], float)
+    lon = np.asarray(path["lon_deg"], float)
+    east, north, _ = pymap3d.geodetic2enu(lat, lon, np.full_like(lat, origin[2]), *origin)
+    points = [Point3(x=float(e), y=float(n), z=0.0) for e, n in zip(east, north)]
+    size = Vector3(x=CHECKPOINT_SIZE_M, y=CHECKPOINT_SIZE_M, z=CHECKPOINT_SIZE_M)
+    spheres = [SpherePrimitive(pose=Pose(position=Vector3(x=float(east[i]), y=float(north[i]), z=0.0),
+                                         orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)),
+                               size=size, color=ROUTE_COLOUR)
+               for i in _marked_checkpoints(len(points))]
+    line = LinePrimitive(type=LinePrimitiveLineType.LineStrip, thickness=4.0, scale_invariant=True,
+                         points=points, color=ROUTE_COLOUR)
+    return SceneUpdate(entities=[SceneEntity(timestamp=timestamp(path["t"]), frame_id=WORLD_FRAME,
+                                             id=ROUTE_ENTITY, lines=[line], spheres=spheres)])
+
+
 def _derived_kind(schema: Schema | None) -> str:
-    return {FIX: "fix", STATE: "estimator", TRUTH: "truth", HEALTH: "health"}.get(schema, "") if schema else ""
+    kinds = {FIX: "fix", STATE: "estimator", TRUTH: "truth", HEALTH: "health", PATH: "path"}
+    return kinds.get(schema, "") if schema else ""
 
 
 def _vector(xyz) -> Vector3:

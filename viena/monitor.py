@@ -2,12 +2,13 @@
 
 Services are found by their liveliness tokens (viena/<car>/alive/<service>[/<unit>]);
 each shows its health (rates, errors, last-sample age, reconnects). Below them: the GNSS
-fixes, the IMUs, the steering, the estimator and the simulator's truth, then any other
-key. A service whose token disappears is shown as lost (at once when it stops; when it
-crashes, once zenoh's lease expires, 10 s by default); every value carries its age,
-and a value older than --stale seconds (health: three periods) is marked stale, not
-shown as current. A service heard only through its health, with no token (a replayed
-drive), is shown as "no token". For one key, `viena sub` prints every sample.
+fixes, the IMUs, the steering, the estimator, the pilot (its mode, cross-track, and the way
+to its next checkpoint) and the simulator's truth, then any other key. A service whose
+token disappears is shown as lost (at once when it stops; when it crashes, once zenoh's
+lease expires, 10 s by default); every value carries its age, and a value older than
+--stale seconds (health: three periods) is marked stale, not shown as current. A service
+heard only through its health, with no token (a replayed drive), is shown as "no token".
+For one key, `viena sub` prints every sample.
 
 The dashboard is a plain data model (`MonitorModel`, fed with decoded samples) and a
 rich rendering of its `view()` as tables that wrap rather than cut a value short at any
@@ -39,6 +40,7 @@ from viena.common.session import add_common_arguments, config_endpoints, stop_on
 from viena.services.estimator.state import monitor_view as estimator_view
 from viena.services.gnss.model.fix import monitor_view as gnss_view
 from viena.services.imu.model.sample import monitor_view as imu_view
+from viena.services.pilot.model.state import monitor_view as pilot_view
 from viena.services.sim.model.truth import monitor_view as truth_view
 from viena.services.steering.model.state import monitor_view as steering_view
 from viena.tool import Connection, Fail, add_timeout_flag, guarded, tool_logging
@@ -107,6 +109,7 @@ class View:
     imu: dict[str, Aged]
     steering: Aged | None
     estimator: Aged | None
+    pilot: Aged | None
     truth: Aged | None
     others: list[Aged]
     bad: dict[str, str]             # key -> why its last sample could not be decoded
@@ -188,7 +191,7 @@ class MonitorModel:
     def view(self, now: float) -> View:
         services = [self._service_view(s, now) for _, s in sorted(self.services.items())]
         gnss, imu, others = {}, {}, []
-        steering = estimator = truth = None
+        steering = estimator = pilot = truth = None
         for key, latest in sorted(self.latest.items()):
             parts = self._local(key)
             aged = self._aged(latest, now)
@@ -202,12 +205,14 @@ class MonitorModel:
                 steering = aged
             elif parts == ["estimator", "state"]:
                 estimator = aged
+            elif parts == ["pilot", "state"]:
+                pilot = aged
             elif parts == ["sim", "truth"]:
                 truth = aged
             else:
                 others.append(aged)
         total = sum(a.rate_hz or 0.0 for a in (self._aged(x, now) for x in self.latest.values()))
-        return View(self.keys.car, services, gnss, imu, steering, estimator, truth, others,
+        return View(self.keys.car, services, gnss, imu, steering, estimator, pilot, truth, others,
                     dict(self.bad), total)
 
     def _service_view(self, s: ServiceState, now: float) -> ServiceView:
@@ -337,6 +342,8 @@ def render(view: View, title: str = "", width: int | None = None):
         tables.append(_field_rows("steering", view.steering, steering_view(view.steering.value), per_row))
     if view.estimator:
         tables.append(_sample_rows("estimator", {"state": view.estimator}, estimator_view, ""))
+    if view.pilot:
+        tables.append(_sample_rows("pilot", {"state": view.pilot}, pilot_view, ""))
     if view.truth:
         tables.append(_sample_rows("simulator truth", {"truth": view.truth}, truth_view, ""))
     if view.others or view.bad:

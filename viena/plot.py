@@ -8,9 +8,15 @@ at +-180), every source aligned on the truth's turns (else the estimator's). Rig
 and steering angle from the same sources, and how sure the estimator says it is (its
 position's sigma, horizontally and vertically, with, from the simulator, how far off it
 really was). The map's origin is the simulator's origin when the recording has truth,
-else the estimator's, else the first valid fix. Samples are read defensively: a field a
-source lacks leaves its line out, never the picture. Estimator states of either version
-are read: /2's sigmas (`sigma_h_m`, `sigma_v_m`), or /1's variances (`enu_var_m2`).
+else the estimator's, else the first valid fix, else the route's first checkpoint.
+Samples are read defensively: a field a source lacks leaves its line out, never the
+picture. Estimator states of either version are read: /2's sigmas (`sigma_h_m`,
+`sigma_v_m`), or /1's variances (`enu_var_m2`).
+
+With a pilot (`viena.pilot.path/1` on pilot/path, services/pilot/model/state.py), the map
+also shows the route it held, through its checkpoints, in the same ENU frame: the newest
+route bold, any earlier one faint. With its state (pilot/state), the stretches of the
+track where the pilot was following are shaded, and where it stopped is crossed, with why.
 """
 from __future__ import annotations
 
@@ -57,11 +63,14 @@ class Drive:
     estimator: dict = field(default_factory=lambda: defaultdict(Series))
     gnss: dict = field(default_factory=lambda: defaultdict(lambda: defaultdict(Series)))
     steering: dict = field(default_factory=lambda: defaultdict(Series))
+    routes: list = field(default_factory=list)      # RouteSeen, oldest first
+    pilot: Series = field(default_factory=Series)   # rows: (following 0/1, stopped 0/1)
+    pilot_stops: list = field(default_factory=list)  # (t, reason)
     counts: dict = field(default_factory=lambda: defaultdict(int))
     invalid_fixes: int = 0
 
     def empty(self) -> bool:
-        return not (self.truth or self.estimator or self.gnss or self.steering)
+        return not (self.truth or self.estimator or self.gnss or self.steering or self.routes)
 
     def to_map(self) -> None:
         """ECEF series -> ENU at the origin, vectorised (pymap3d takes arrays)."""
@@ -74,6 +83,32 @@ class Drive:
             t, xyz = ecef.array()
             e, n, u = pymap3d.ecef2enu(xyz[:, 0], xyz[:, 1], xyz[:, 2], *self.origin)
             source["enu"] = Series(list(t), np.column_stack([e, n, u]).tolist())
+        for route in self.routes:
+            route.to_map(self.origin)
+
+
+@dataclass
+class RouteSeen:
+    """A route the pilot held: its checkpoints, when it was last published, and (once
+    `to_map`) the checkpoints in the map's ENU metres."""
+
+    lat_deg: tuple
+    lon_deg: tuple
+    length_m: float | None
+    t: float
+    enu: np.ndarray | None = None
+
+    def same_as(self, lat_deg, lon_deg) -> bool:
+        return self.lat_deg == tuple(lat_deg) and self.lon_deg == tuple(lon_deg)
+
+    def to_map(self, origin) -> None:
+        """East, north of the checkpoints at the origin's height (they are places on the
+        road, as the pilot takes them: services/pilot/model/path.py)."""
+        import pymap3d
+
+        lat, lon = np.asarray(self.lat_deg, float), np.asarray(self.lon_deg, float)
+        e, n, _ = pymap3d.geodetic2enu(lat, lon, np.full_like(lat, origin[2]), *origin)
+        self.enu = np.column_stack([e, n])
 
 
 def _number(v) -> float | None:
@@ -91,11 +126,13 @@ def _vec(v, n: int) -> list[float] | None:
 
 def _kind(key: str, schema: str) -> str:
     """What a sample is, by schema name or else by key (viena/<car>/<service>/...)."""
-    for kind in ("sim.truth", "gnss.fix", "estimator.state", "steering.state"):
+    for kind in ("sim.truth", "gnss.fix", "estimator.state", "steering.state", "pilot.path", "pilot.state"):
         if schema.startswith(f"viena.{kind}/"):
             return kind
     parts = key.split("/")
     tail = "/".join(parts[2:])
+    if tail in ("pilot/path", "pilot/state"):
+        return tail.replace("/", ".")
     if tail == "sim/truth":
         return "sim.truth"
     if tail == "estimator/state":
@@ -111,7 +148,7 @@ def load_drive(recording: Recording) -> Drive:
     """Two passes: the first finds the drive's start and the map's origin, the second
     gathers the series (positions as ECEF, turned into map coordinates in one go)."""
     drive = Drive()
-    first_fix = None
+    first_fix = first_checkpoint = None
     for msg in recording.messages():
         kind = _kind(msg.key, msg.schema)
         if not kind:
@@ -128,10 +165,17 @@ def load_drive(recording: Recording) -> Drive:
             geo = [_number(s.get(k)) for k in ("lat_deg", "lon_deg", "height_m")]
             if _valid_fix(s) and None not in geo:
                 first_fix = tuple(geo)
+        elif kind == "pilot.path" and first_checkpoint is None:
+            checkpoints = _checkpoints(_decoded(msg))
+            if checkpoints:
+                first_checkpoint = (checkpoints[0][0], checkpoints[1][0], 0.0)
     if drive.origin is None and first_fix is not None:
         drive.origin, drive.origin_source = first_fix, "first fix"
+    if drive.origin is None and first_checkpoint is not None:
+        drive.origin, drive.origin_source = first_checkpoint, "the route's first checkpoint"
     add = {"sim.truth": _add_truth, "estimator.state": _add_estimator,
-           "gnss.fix": _add_fix, "steering.state": _add_steering}
+           "gnss.fix": _add_fix, "steering.state": _add_steering,
+           "pilot.path": _add_path, "pilot.state": _add_pilot}
     for msg in recording.messages():
         kind = _kind(msg.key, msg.schema)
         if kind:
@@ -231,6 +275,46 @@ def _add_fix(drive: Drive, t: float, key: str, s: dict) -> None:
             series["yaw"].add(t, math.degrees(math.atan2(-east, north)))
 
 
+def _checkpoints(s: dict) -> tuple[tuple, tuple] | None:
+    """(lat_deg, lon_deg) of a pilot path sample, None unless it is a line of finite points."""
+    lat, lon = s.get("lat_deg"), s.get("lon_deg")
+    if not isinstance(lat, list) or not isinstance(lon, list) or len(lat) != len(lon) or len(lat) < 2:
+        return None
+    lat, lon = [_number(v) for v in lat], [_number(v) for v in lon]
+    if None in lat or None in lon:
+        return None
+    return tuple(lat), tuple(lon)
+
+
+def _add_path(drive: Drive, t: float, _key: str, s: dict) -> None:
+    """A route the pilot held (published again every few seconds): each distinct one
+    once, in the order they were last held."""
+    checkpoints = _checkpoints(s)
+    if checkpoints is None or drive.origin is None:
+        return
+    drive.counts["pilot path"] += 1
+    seen = next((r for r in drive.routes if r.same_as(*checkpoints)), None)
+    if seen is not None:
+        drive.routes.remove(seen)
+        seen.t = t
+    else:
+        seen = RouteSeen(*checkpoints, _number(s.get("length_m")), t)
+    drive.routes.append(seen)
+
+
+def _add_pilot(drive: Drive, t: float, _key: str, s: dict) -> None:
+    """Whether the pilot was following, and where it stopped (the first state of a stop)."""
+    mode = s.get("mode")
+    if not isinstance(mode, str):
+        return
+    drive.counts["pilot state"] += 1
+    was_stopped = bool(drive.pilot.rows) and drive.pilot.rows[-1][1] == 1.0
+    drive.pilot.add(t, (float(mode == "following"), float(mode == "stopped")))
+    if mode == "stopped" and not was_stopped:
+        reason = s.get("reason")
+        drive.pilot_stops.append((t, reason if isinstance(reason, str) else ""))
+
+
 def _add_steering(drive: Drive, t: float, _key: str, s: dict) -> None:
     """Every angle the steering state reports, by the unit in its name: *_deg, *_rad."""
     if not s:
@@ -249,6 +333,10 @@ def _add_steering(drive: Drive, t: float, _key: str, s: dict) -> None:
 TRUTH_STYLE = dict(color="black", lw=1.2, label="truth (sim)")
 ESTIMATOR_STYLE = dict(color="tab:red", lw=1.2, label="estimator")
 GNSS_COLOURS = ["tab:blue", "tab:green", "tab:purple", "tab:orange", "tab:cyan"]
+ROUTE_COLOUR = "#e6007e"             # magenta: no source of the track has it (Foxglove's map too)
+FOLLOWING_STYLE = dict(color="gold", lw=9, alpha=0.45, solid_capstyle="round", zorder=0.5)
+#: a pilot state older than this says nothing about the track (the pilot was not running)
+PILOT_STATE_GAP_S = 1.0
 
 
 def unwrap_deg(deg: np.ndarray) -> np.ndarray:
@@ -282,6 +370,7 @@ def draw(drive: Drive, title: str, path: Path) -> None:
     fig.suptitle(title, fontsize=12)
 
     yaw_ref = _yaw_reference(drive)
+    _draw_routes(track, drive)
     for unit, colour in zip(sorted(drive.gnss), GNSS_COLOURS * 4):
         series = drive.gnss[unit]
         style = dict(color=colour, label=f"GNSS {unit}")
@@ -310,6 +399,7 @@ def draw(drive: Drive, title: str, path: Path) -> None:
     _draw_sigma(sigma, drive)
 
     _mark_ends(track, drive)
+    _draw_pilot(track, drive)
     track.set_aspect("equal", adjustable="datalim")
     origin = drive.origin
     where = (f"{origin[0]:.5f}, {origin[1]:.5f}, {origin[2]:.0f} m ({drive.origin_source})"
@@ -360,12 +450,58 @@ def _yaw_reference(drive: Drive) -> tuple[np.ndarray, np.ndarray]:
     return np.array([]), np.array([])
 
 
-def _main_track(drive: Drive) -> np.ndarray | None:
-    """The track the marks go on: the truth, else the estimator, else a receiver (x, y rows)."""
+def _main_series(drive: Drive) -> tuple[np.ndarray, np.ndarray] | None:
+    """The track the marks go on: the truth, else the estimator, else a receiver (t, x y rows)."""
     for series in [drive.truth["enu"], drive.estimator["enu"], *(g["enu"] for g in drive.gnss.values())]:
         if series.t:
-            return np.asarray(series.rows, float)[:, :2]
+            return np.asarray(series.t, float), np.asarray(series.rows, float)[:, :2]
     return None
+
+
+def _main_track(drive: Drive) -> np.ndarray | None:
+    series = _main_series(drive)
+    return None if series is None else series[1]
+
+
+def _draw_routes(ax, drive: Drive) -> None:
+    """The routes the pilot held, checkpoints marked: the newest bold, earlier ones faint."""
+    earlier = drive.routes[:-1]
+    for i, route in enumerate(earlier):
+        ax.plot(route.enu[:, 0], route.enu[:, 1], "--", marker="D", ms=3, lw=1.2, alpha=0.35,
+                color=ROUTE_COLOUR, label="pilot route, earlier" if i == 0 else None, zorder=1)
+    if drive.routes:
+        route = drive.routes[-1]
+        length = "" if route.length_m is None else f", {route.length_m:.0f} m"
+        ax.plot(route.enu[:, 0], route.enu[:, 1], "--", marker="D", ms=4, lw=2, mfc="white",
+                color=ROUTE_COLOUR, label=f"pilot route ({len(route.enu)} checkpoints{length})", zorder=1)
+
+
+def pilot_following(t: np.ndarray, pilot_t: np.ndarray, following: np.ndarray) -> np.ndarray:
+    """At each time of `t`, whether the pilot's newest state (no older than
+    PILOT_STATE_GAP_S) said it was following."""
+    i = np.searchsorted(pilot_t, t, side="right") - 1
+    known = (i >= 0) & (t - pilot_t[np.maximum(i, 0)] <= PILOT_STATE_GAP_S)
+    return known & (following[np.maximum(i, 0)] > 0.5)
+
+
+def _draw_pilot(ax, drive: Drive) -> None:
+    """The track shaded where the pilot followed the route; a cross where it stopped, with why."""
+    series = _main_series(drive)
+    if series is None or not drive.pilot.t:
+        return
+    t, xy = series
+    pilot_t, rows = drive.pilot.array()
+    on = pilot_following(t, pilot_t, rows[:, 0])
+    if on.any():
+        shaded = np.where(on[:, None], xy, np.nan)        # NaN breaks the line where it did not follow
+        ax.plot(shaded[:, 0], shaded[:, 1], "-", label="pilot following", **FOLLOWING_STYLE)
+    middle = np.nanmean(xy[:, 0])
+    for i, (t_stop, reason) in enumerate(drive.pilot_stops):
+        x, y = np.interp(t_stop, t, xy[:, 0]), np.interp(t_stop, t, xy[:, 1])
+        ax.plot([x], [y], "X", ms=7, color=ROUTE_COLOUR, mec="0.1", label="pilot stopped" if i == 0 else None)
+        left = x > middle                      # the text towards the map's middle, not off its edge
+        ax.annotate(f"stopped: {reason}" if reason else "stopped", (x, y), xytext=(-8 if left else 8, 6),
+                    textcoords="offset points", ha="right" if left else "left", fontsize=8, color=ROUTE_COLOUR)
 
 
 def _mark_ends(ax, drive: Drive, arrows: int = 10) -> None:

@@ -81,7 +81,6 @@ class Estimator:
             if len(s.origin) != 3:
                 raise ValueError("origin is [lat_deg, lon_deg, height_m]")
             self.set_origin(LocalFrame(*s.origin), "config")
-        self.waypoint: tuple[float, float] | None = None
         self._seq = 0
         self.gnss = GnssUpdate(self)
         self.standstill = None
@@ -146,9 +145,6 @@ class Estimator:
         n = self.counters.input(exc.reason, exc.source)
         if n and math.log10(n) % 1.0 == 0.0:
             self.log.warning("%s: input refused for its time (%s), %d so far", exc.source, exc, n)
-
-    def set_waypoint(self, waypoint: tuple[float, float] | None) -> None:
-        self.waypoint = None if waypoint is None else (float(waypoint[0]), float(waypoint[1]))
 
     def state(self) -> dict:
         """The state as a viena.estimator.state/2 sample. Never carries a NaN: if the

@@ -11,7 +11,6 @@ import math
 from viena.services.estimator.angles import yaw_pitch_roll
 from viena.services.estimator.heading import UNKNOWN_VAR
 from viena.services.estimator.kalman import NavKalman
-from viena.services.estimator.navigation import waypoint_guidance
 
 #: a valid schema time for a state before any input (1980-01-06, the GPS epoch)
 TIME_FLOOR_NS = 315_964_800_000_000_000
@@ -99,11 +98,7 @@ def build_state(est, seq: int) -> tuple[dict, list]:
         "counts": dict(counters.counts),
         "last_reset": counters.last_reset,
         "imu_time_offset_hint_s": est.gnss.timing.offset_s,
-        "waypoint": list(est.waypoint) if est.waypoint else None,
-        "wp_bearing_deg": None, "wp_distance_m": None, "wp_heading_error_deg": None,
     }
-    if est.waypoint and geo[0] is not None:
-        out.update(waypoint_guidance(geo[0], geo[1], yaw, *est.waypoint, geo[2]))
     numbers = [*pos, *vel, *bias, *pos_var, *vel_var, *q, *att_var, *att.rate, *att.gyro_bias,
                ee, en, eu, nn, nu, uu, sigma_h]
     if geo[0] is not None:

@@ -5,10 +5,9 @@
 Subscribes to viena.imu.sample/1 and viena.gnss.fix/1 samples (key expressions relative to
 viena/<car>/, settings `imu_key` and `gnss_key`), feeds them to `Estimator` on one worker
 thread, and publishes viena.estimator.state/2 on viena/<car>/estimator/state after every
-IMU sample it uses (after every fix when there is no IMU). A waypoint put on
-viena/<car>/estimator/waypoint as {"lat": .., "lon": ..} (msgpack or JSON text; {} clears
-it) adds bearing, distance and heading error to the state. Thin on purpose: everything
+IMU sample it uses (after every fix when there is no IMU). Thin on purpose: everything
 the estimator does is in estimator.py (and the modules it wires) and runs the same offline.
+Routes and the way to the next checkpoint are the pilot's (services/pilot).
 """
 from __future__ import annotations
 
@@ -18,12 +17,10 @@ import time
 from dataclasses import dataclass
 
 from viena.common.errors import ConfigError, InputError
-from viena.common.payload import parse_payload
 from viena.common.schema import unpack
 from viena.common.service import Service, run_service
 from viena.common.settings import part, setting
 from viena.services.estimator.estimator import Estimator
-from viena.services.estimator.navigation import waypoint_from
 from viena.services.estimator.settings import EstimatorSettings
 from viena.services.estimator.state import STATE
 
@@ -56,8 +53,6 @@ class EstimatorService(Service):
         imu_key, gnss_key = self.keys.key(s.imu_key), self.keys.key(s.gnss_key)
         self.declare_subscriber(imu_key, lambda sample: self._enqueue("imu", sample))
         self.declare_subscriber(gnss_key, lambda sample: self._enqueue("gnss", sample))
-        self.declare_subscriber(self.keys.key("estimator", "waypoint"),
-                                lambda sample: self._enqueue("waypoint", sample))
         self.log.info("estimating from %s and %s", imu_key, gnss_key)
         self._last_health = 0.0
         self._thread = threading.Thread(target=self._run, name="estimator", daemon=True)
@@ -72,7 +67,7 @@ class EstimatorService(Service):
     # -- zenoh callbacks: never block -----------------------------------------------------------
     def _enqueue(self, kind: str, sample) -> None:
         try:
-            self._queue.put_nowait((kind, sample.payload.to_bytes(), str(sample.encoding)))
+            self._queue.put_nowait((kind, sample.payload.to_bytes()))
         except queue.Full:
             self.health.error("queue_full")
 
@@ -80,28 +75,17 @@ class EstimatorService(Service):
     def _run(self) -> None:
         while not self.stopping.is_set():
             try:
-                kind, payload, encoding = self._queue.get(timeout=0.2)
+                kind, payload = self._queue.get(timeout=0.2)
             except queue.Empty:
                 continue
             try:
-                self._handle(kind, payload, encoding)
+                self._handle(kind, payload)
             except Exception:                    # noqa: BLE001 - the worker must survive anything
                 self.health.error("internal")
                 self.log.exception("estimator failed on a %s sample", kind)
 
-    def _handle(self, kind: str, payload: bytes, encoding: str) -> None:
+    def _handle(self, kind: str, payload: bytes) -> None:
         est = self.estimator
-        if kind == "waypoint":
-            try:
-                waypoint = waypoint_from(parse_payload(payload, encoding))
-            except (InputError, ValueError) as exc:
-                self.health.error("bad_waypoint")
-                self.log.warning("waypoint refused: %s", exc)
-                return
-            est.set_waypoint(waypoint)
-            self.log.info("waypoint %s", "cleared" if waypoint is None else
-                          f"lat {waypoint[0]:.7f} lon {waypoint[1]:.7f}")
-            return
         try:
             sample = unpack(payload, kind)
         except InputError:

@@ -1,7 +1,6 @@
 """viena.estimator.state/2: the car's estimated state, on viena/<car>/estimator/state.
 
-SI units, angles in rad except the waypoint guidance, which keeps degrees, as its names
-say (docs/estimator.md#waypoint-guidance). Frames (docs/frames.md): positions and velocities in the local
+SI units, angles in rad. Frames (docs/frames.md): positions and velocities in the local
 ENU frame at `origin`, attitude body -> ENU (body x right, y forward, z up), yaw about
 up (counter-clockwise from north), pitch about the right axis (nose up > 0), roll about
 the forward axis (right side down > 0), in the aircraft order yaw, pitch, roll:
@@ -10,6 +9,13 @@ R = Rz(yaw) Rx(pitch) Ry(roll) (services/estimator/angles.py).
 Version 2 (issue 13): roll and pitch are named by the axes they turn about (in /1
 `pitch_rad` turned about forward and `roll_rad` about right, Z-Y-X), and the position's
 uncertainty comes as the full covariance, per axis, horizontally and vertically.
+
+Still version 2 after issue 17 took out the four optional fields of guidance to one
+target point: routes, and the distance, bearing and heading error to the next checkpoint,
+are the pilot's (viena.pilot.state/1). Removing optional fields keeps both sides reading
+each other: a reader of the older /2 takes a state without them (an optional field may be
+missing), and this schema decodes an older state with them (decoding keeps unknown
+fields), so the name stays (docs/dataflow.md#samples).
 """
 from __future__ import annotations
 
@@ -69,11 +75,6 @@ STATE = Schema("viena.estimator.state/2", {
     "counts": F.map,                      # imu, gnss, imu_gaps, resets, ...
     "last_reset": F.optional(F.str),      # why the filter last reset itself
     "imu_time_offset_hint_s": F.optional(F.float),  # the IMU's time_offset_s the fixes point at
-    # navigation to a waypoint (docs/estimator.md#waypoint-guidance)
-    "waypoint": F.optional(F.vec(2)),     # [lat_deg, lon_deg]
-    "wp_bearing_deg": F.optional(F.float),          # from north, clockwise, +-180
-    "wp_distance_m": F.optional(F.float),
-    "wp_heading_error_deg": F.optional(F.float),    # bearing - heading, +-180, >0: turn right
 })
 
 MODES_HELP = {
@@ -113,8 +114,4 @@ def monitor_view(state: dict) -> dict[str, str]:
     if hint is not None:
         cells["IMU clock"] = (f"stamps {abs(hint) * 1e3:.0f} ms {'late' if hint < 0 else 'early'}: "
                               f"time_offset_s = {hint:+.3f}?")
-    if state.get("waypoint") is not None:
-        cells["waypoint"] = (f"{fmt_num(state.get('wp_distance_m'), 1)} m at "
-                             f"{fmt_num(state.get('wp_bearing_deg'), 1)}°, "
-                             f"turn {fmt_num(state.get('wp_heading_error_deg'), 1)}°")
     return cells

@@ -14,8 +14,11 @@ Keys (relative to viena/<car>/; payloads JSON text or msgpack, replies in the qu
   recordings, plots and maps).
 
 One control thread does everything in order at the setpoint rate: takes the commands the
-zenoh callbacks queued, reads the newest estimator state, asks the model (model/pilot.py)
-for the wheel angle, and streams it to the steering with its own lease (SteeringClient).
+zenoh callbacks queued, reads the newest estimator and steering states, asks the model
+(model/pilot.py) for the wheel angle, and streams it to the steering with its own lease
+(SteeringClient). The two state streams (~100 and 50 Hz) are kept by zenoh in one-sample
+ring channels that the thread reads when it needs them: no Python callback per sample,
+which is most of what such a process would otherwise spend (docs/pilot.md#cost).
 When the model says stop (or the steering refuses a setpoint), no more setpoints go out
 and the lease is given back; the steering's watchdog is the last line if this process dies.
 An estop put on steering/estop stops the pilot too; it then needs a new start.
@@ -96,11 +99,8 @@ class PilotService(Service):
             raise ConfigError(f"[pilot]: {exc}") from None
         self.client = SteeringClient(self.session, self.keys.car, timeout_s=s.arm_timeout_s)
         self._events: queue.Queue = queue.Queue(maxsize=100)
-        self._estimate_lock = threading.Lock()
-        self._estimate_raw: bytes | None = None
         self._unanswered_since: float | None = None
-        self._estimate_arrived = self._used_arrived = 0.0
-        self._latencies_s: list[float] = []          # estimate in -> setpoint answered
+        self._latencies_s: list[float] = []          # estimate's stamp -> setpoint sent
         self._state_pub = self.publisher(self.keys.key("pilot", "state"), STATE)
         self._path_pub = self.publisher(self.keys.key("pilot", "path"), PATH)
         self._path_due = math.inf                     # when to publish the route again
@@ -108,14 +108,15 @@ class PilotService(Service):
             key = self.keys.key("pilot", name)
             self.declare_queryable(key, self._on_query(name, key))
             self.declare_subscriber(key, self._on_put(name))
-        self.declare_subscriber(self.keys.key(s.estimate_key), self._on_estimate)
-        self._steering: tuple | None = None           # (received monotonic, t, armed, owner, trip)
+        self._estimates = self.declare_subscriber(self.keys.key(s.estimate_key), zenoh.handlers.RingChannel(1))
+        self._steering: tuple | None = None           # (read monotonic, t, armed, owner, trip)
         self._owner: str | None = None
         self._armed_at = 0.0                           # monotonic, when the arm was granted
         if s.setpoints_as == "put":
             self._setpoint_pub = self.session.declare_publisher(self.keys.key("steering", "setpoint"))
             self._declared.append(self._setpoint_pub)
-            self.declare_subscriber(self.keys.key("steering", "state"), self._on_steering)
+            self._steering_states = self.declare_subscriber(self.keys.key("steering", "state"),
+                                                            zenoh.handlers.RingChannel(1))
         self.declare_subscriber(self.keys.key("steering", "estop"), lambda _s: self._queue(("estop", None, None)))
         self._thread = threading.Thread(target=self._run, name="pilot", daemon=True)
         self._thread.start()
@@ -129,19 +130,6 @@ class PilotService(Service):
             thread.join(timeout=1.5)
 
     # -- zenoh callbacks: never block ---------------------------------------------------------------
-    def _on_estimate(self, sample: zenoh.Sample) -> None:
-        with self._estimate_lock:
-            self._estimate_raw = sample.payload.to_bytes()
-            self._estimate_arrived = time.perf_counter()
-
-    def _on_steering(self, sample: zenoh.Sample) -> None:
-        try:
-            t, armed, owner, trip = _STEERING(unpack(sample.payload.to_bytes(), "steering state"))
-        except InputError:
-            self.health.error("bad_steering_state")
-            return
-        self._steering = (time.monotonic(), t, armed, owner, trip)
-
     def _on_query(self, kind: str, own_key: str):
         def on_query(query: zenoh.Query) -> None:
             data, encoding = query_payload(query)
@@ -197,6 +185,8 @@ class PilotService(Service):
 
     def _step(self) -> None:
         self._read_estimate()
+        if self.settings.setpoints_as == "put":
+            self._read_steering()
         while True:
             try:
                 kind, payload, query = self._events.get_nowait()
@@ -215,18 +205,29 @@ class PilotService(Service):
         self._setpoint(math.degrees(angle_rad))
 
     def _read_estimate(self) -> None:
-        with self._estimate_lock:
-            raw, self._estimate_raw = self._estimate_raw, None
-            arrived = self._estimate_arrived
-        if raw is None:
+        """The newest estimator state, if one came since the last tick."""
+        sample = self._estimates.try_recv()
+        if sample is None:
             return
-        self._used_arrived = arrived
         try:
-            self.pilot.on_estimate(estimate_of(unpack(raw, "estimator state")))
+            self.pilot.on_estimate(estimate_of(unpack(sample.payload.to_bytes(), "estimator state")))
             self.health.count("estimate")
         except InputError as exc:
             self.health.error("bad_estimate")
             self._refusals.log("estimate", f"estimator state not used: {exc}")
+
+    def _read_steering(self) -> None:
+        """The newest steering state, if one came since the last tick; stamped with when it
+        was read, at most one tick after it arrived."""
+        sample = self._steering_states.try_recv()
+        if sample is None:
+            return
+        try:
+            t, armed, owner, trip = _STEERING(unpack(sample.payload.to_bytes(), "steering state"))
+        except InputError:
+            self.health.error("bad_steering_state")
+            return
+        self._steering = (time.monotonic(), t, armed, owner, trip)
 
     def _arm(self) -> bool:
         try:
@@ -255,7 +256,7 @@ class PilotService(Service):
         finally:
             self.client.timeout_s = self.settings.arm_timeout_s
         self.health.count("setpoint")
-        self._note_latency(time.perf_counter() - self._used_arrived)
+        self._note_latency()
         now = time.monotonic()
         if str(reply.get("reason", "")).startswith("no answer"):
             # a lost answer is not a refusal: keep streaming, until the steering's own
@@ -296,12 +297,14 @@ class PilotService(Service):
         self._setpoint_pub.put(msgpack.packb({"angle_deg": angle_deg, "lease": self.client.lease}),
                                encoding=zenoh.Encoding("application/msgpack"))
         self.health.count("setpoint")
-        self._note_latency(time.perf_counter() - self._used_arrived)
+        self._note_latency()
 
-    def _note_latency(self, latency_s: float) -> None:
-        """From the estimate's arrival to the steering's answer to the setpoint made from
-        it, p50 and p99 over the last 500 setpoints, in health."""
-        self._latencies_s.append(latency_s)
+    def _note_latency(self) -> None:
+        """From the estimate's stamp to the setpoint made from it sent (or answered, for
+        queries), p50 and p99 over the last 500 setpoints, in health. The stamp is the
+        estimator's clock: on one machine, or machines kept in sync, it is the whole way
+        from the sensors' time to the steering."""
+        self._latencies_s.append((time.time_ns() - self.pilot.estimate.t_ns) * 1e-9)
         if len(self._latencies_s) >= 500:
             ordered = sorted(self._latencies_s)
             self.health.set("estimate_to_setpoint_ms", {"p50": round(ordered[249] * 1e3, 2),

@@ -27,14 +27,6 @@ from viena.services.estimator.angles import (
 )
 from viena.services.estimator.heading import course_yaw
 from viena.services.estimator.madgwick import attitude_from_vectors
-from viena.services.estimator.navigation import (
-    bearing_distance,
-    compass_heading_deg,
-    heading_error_deg,
-    normalize_deg,
-    waypoint_from,
-    waypoint_guidance,
-)
 
 IST = (38.7369, -9.1395, 100.0)
 angles = st.floats(-math.pi, math.pi, allow_nan=False)
@@ -150,8 +142,7 @@ def test_at_yaw_zero_the_car_points_north_and_yaw_turns_it_left():
     forward = np.array([0.0, 1.0, 0.0])                   # body y
     np.testing.assert_allclose(euler_to_matrix(0, 0, 0) @ forward, (0, 1, 0), atol=1e-12)
     np.testing.assert_allclose(euler_to_matrix(math.pi / 2, 0, 0) @ forward, (-1, 0, 0), atol=1e-12)
-    assert compass_heading_deg(math.pi / 2) == pytest.approx(-90.0)     # West
-    assert compass_heading_deg(-math.pi / 2) == pytest.approx(90.0)     # East
+    # the compass heading (clockwise, = -yaw) of these yaws: tests/pilot/test_pilot_guidance.py
     assert course_yaw(0.0, 5.0) == 0.0
     assert course_yaw(-5.0, 0.0) == pytest.approx(math.pi / 2)
     assert course_yaw(3.0, 0.0) == pytest.approx(-math.pi / 2)
@@ -167,71 +158,6 @@ def test_still_alignment_recovers_the_attitude(yaw, pitch, roll):
     np.testing.assert_allclose(quat_to_matrix(q), r, atol=1e-9)
     y, p, rr = euler_from_quat(attitude_from_vectors(r.T @ [0, 0, 9.8]))
     assert (y, p, rr) == pytest.approx((0.0, pitch, roll), abs=1e-9)
-
-
-# -- navigation to a waypoint (docs/estimator.md#waypoint-guidance) --------------------------------
-def titans_flat_bearing_distance(lat, lon, wp_lat, wp_lon):
-    """The report's way: metres per degree at this latitude, the angle to a point north."""
-    m_lat = 111_132.92 - 559.82 * math.cos(2 * math.radians(lat))
-    m_lon = 111_412.84 * math.cos(math.radians(lat)) - 93.5 * math.cos(3 * math.radians(lat))
-    a = np.array([(wp_lon - lon) * m_lon, (wp_lat - lat) * m_lat])
-    b = np.array([0.0, 1.0])
-    alpha = math.degrees(math.acos(a @ b / np.linalg.norm(a)))
-    return (alpha if a[0] >= 0 else -alpha), float(np.linalg.norm(a))
-
-
-@pytest.mark.parametrize("de, dn", [(30, 40), (-30, 40), (-10, -70), (60, -5), (0.0, 120), (-200, 0.1)])
-def test_bearing_and_distance_match_the_titans_method_at_short_range(de, dn):
-    wp = pymap3d.enu2geodetic(de, dn, 0.0, *IST)
-    bearing, distance = bearing_distance(IST[0], IST[1], wp[0], wp[1])
-    t_bearing, t_distance = titans_flat_bearing_distance(IST[0], IST[1], wp[0], wp[1])
-    assert bearing == pytest.approx(math.degrees(math.atan2(de, dn)), abs=0.01)
-    assert bearing == pytest.approx(t_bearing, abs=0.05)
-    assert distance == pytest.approx(math.hypot(de, dn), rel=1e-4)
-    assert distance == pytest.approx(t_distance, rel=2e-3)
-
-
-def test_bearing_and_distance_agree_with_pymap3d_far_away():
-    wp = (38.80, -9.05)                                    # ~11 km north-east
-    bearing, distance = bearing_distance(IST[0], IST[1], *wp)
-    az, _, rng = pymap3d.geodetic2aer(wp[0], wp[1], IST[2], *IST)
-    assert bearing == pytest.approx(normalize_deg(float(az)), abs=0.05)
-    assert distance == pytest.approx(float(rng), rel=1e-3)
-
-
-@settings(max_examples=200, deadline=None)
-@given(st.floats(-1e4, 1e4), st.floats(-1e4, 1e4))
-def test_heading_error_is_normalised_to_plus_minus_180(bearing, heading):
-    err = heading_error_deg(bearing, heading)
-    assert -180.0 <= err < 180.0
-    assert math.isclose(math.cos(math.radians(err)), math.cos(math.radians(bearing - heading)), abs_tol=1e-6)
-
-
-def test_heading_error_says_which_way_to_turn():
-    north_east = pymap3d.enu2geodetic(50.0, 50.0, 0.0, *IST)
-    g = waypoint_guidance(IST[0], IST[1], 0.0, north_east[0], north_east[1], IST[2])
-    assert g["wp_bearing_deg"] == pytest.approx(45.0, abs=0.01)
-    assert g["wp_heading_error_deg"] == pytest.approx(45.0, abs=0.01)           # turn right
-    g = waypoint_guidance(IST[0], IST[1], math.radians(-90), north_east[0], north_east[1], IST[2])
-    assert g["wp_heading_error_deg"] == pytest.approx(-45.0, abs=0.01)         # facing east: left
-    g = waypoint_guidance(IST[0], IST[1], math.radians(170), north_east[0], north_east[1], IST[2])
-    assert g["wp_heading_error_deg"] == pytest.approx(-145.0, abs=0.01)
-
-
-@pytest.mark.parametrize("payload, expected", [
-    ({"lat": 38.7, "lon": -9.1}, (38.7, -9.1)), ({"lat": 1, "lon": 2}, (1.0, 2.0)),
-    ({}, None), ({"clear": True}, None)])
-def test_waypoint_payloads(payload, expected):
-    assert waypoint_from(payload) == expected
-
-
-@pytest.mark.parametrize("payload", [
-    {"lat": 91.0, "lon": 0.0}, {"lat": float("nan"), "lon": 0.0}, {"lat": "38", "lon": 0.0},
-    {"lat": 38.0}, {"lat": 38.0, "lon": 0.0, "alt": 3}, [38.0, -9.0], {"lat": True, "lon": 0.0}])
-def test_bad_waypoints_are_refused_with_a_reason(payload):
-    with pytest.raises(ValueError) as exc:
-        waypoint_from(payload)
-    assert str(exc.value)
 
 
 # -- the state's angles (viena.estimator.state/2, issue 13 item 6) ---------------------------------

@@ -10,7 +10,8 @@ SDK's server names it `foxglove.sdk.v1` (formerly `foxglove.websocket.v1`, the s
 protocol); the client offers both names, as Foxglove and Lichtblick do.
 
 Also: `decoder(channel)` turns a channel's messages into values by its own advertised
-schema: JSON checked with jsonschema, protobuf parsed with the channel's descriptors.
+schema: JSON checked with jsonschema, protobuf parsed with the channel's descriptors; and
+`read_all(path)`, `as_advertised(channel, schema)` do the same for an MCAP file's channels.
 """
 from __future__ import annotations
 
@@ -186,3 +187,21 @@ def protobuf_decoder(name: str, descriptor_set: bytes):
         pool.Add(proto)
     cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
     return cls.FromString
+
+
+def read_all(path):
+    """(summary, [(schema, channel, message)]) of an MCAP file through the mcap library's own reader."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        return summary, list(reader.iter_messages())
+
+
+def as_advertised(channel, schema) -> dict:
+    """An MCAP channel as the WebSocket protocol advertises it, for the same decoder."""
+    data = schema.data if schema else b""
+    return {"topic": channel.topic, "encoding": channel.message_encoding,
+            "schemaName": schema.name if schema else "",
+            "schema": base64.b64encode(data).decode() if channel.message_encoding == "protobuf" else data.decode()}

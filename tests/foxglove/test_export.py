@@ -2,13 +2,12 @@
 channel has an encoding Foxglove knows and whose every message passes its own schema."""
 from __future__ import annotations
 
-import base64
 import json
 from collections import Counter
 
 import msgpack
 import pytest
-from foxglove_client import decoder
+from foxglove_client import as_advertised, decoder, read_all
 from laptop_helpers import FIX_ENCODING, viena, write_drive
 from mcap.reader import make_reader
 
@@ -31,22 +30,6 @@ def exported(drive, tmp_path_factory):
     result = viena("export", path, "--format", "foxglove", "-o", out)
     assert result.returncode == 0, result.stderr
     return out, written
-
-
-def read_all(path):
-    """(summary, [(channel, schema, message)]) through the mcap library's own reader."""
-    with open(path, "rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        return summary, list(reader.iter_messages())
-
-
-def as_advertised(channel, schema) -> dict:
-    """A channel as the WebSocket protocol advertises it, for the same decoder."""
-    data = schema.data if schema else b""
-    return {"topic": channel.topic, "encoding": channel.message_encoding,
-            "schemaName": schema.name if schema else "",
-            "schema": base64.b64encode(data).decode() if channel.message_encoding == "protobuf" else data.decode()}
 
 
 def test_every_channel_has_a_known_encoding_and_every_message_passes_its_schema(exported):

@@ -14,7 +14,7 @@ from viena.common.schema import SCHEMAS, F, SampleError, Schema
 from viena.recording import Recording
 
 CAR_SCHEMAS = ["viena.gnss.fix/1", "viena.imu.sample/1", "viena.steering.state/1",
-               "viena.estimator.state/2", "viena.sim.truth/1", "viena.health/1"]
+               "viena.estimator.state/2", "viena.sim.truth/1", "viena.health/1", "viena.pilot.state/1"]
 EXAMPLE = Schema("viena.test.jsonschema/1", {
     "t": F.time, "seq": F.int, "x_m": F.float, "ok": F.bool, "name": F.str,
     "mode": F.enum("a", "b"), "v": F.vec(3), "names": F.list(F.str), "extra": F.map,

@@ -112,9 +112,34 @@ def _state(truth, rng, seq: int) -> dict:
             "yaw_rad": truth.yaw_rad + float(rng.normal(0, 0.01)), "pitch_rad": 0.0, "roll_rad": 0.0,
             "att_var_rad2": [1e-4] * 3, "rate_body_radps": [0.0] * 3, "accel_bias_mps2": [0.0] * 3,
             "gyro_bias_radps": [0.0] * 3, "gnss_used": seq // 2, "gnss_rejected": {},
-            "input_rejected": {}, "counts": {"imu": seq * 4}, "last_reset": None,
-            "waypoint": None, "wp_bearing_deg": None, "wp_distance_m": None,
-            "wp_heading_error_deg": None}
+            "input_rejected": {}, "counts": {"imu": seq * 4}, "last_reset": None}
+
+
+def pilot_state(x_m: float = 0.5, y_m: float = 12.0, yaw_deg: float = 0.0,
+                stop_reason: str | None = None) -> dict:
+    """A viena.pilot.state/1 sample as the pilot's own model makes it: following a route
+    north of the sim's origin (a checkpoint every 10 m) from the car at (x_m, y_m) ENU,
+    facing yaw_deg (CCW from north), one setpoint sent; stopped for `stop_reason` if given."""
+    from viena.common.geodesy import LocalFrame
+    from viena.services.pilot.model.estimate import Estimate
+    from viena.services.pilot.model.pilot import Pilot
+    from viena.services.pilot.model.route import checked
+    from viena.services.pilot.model.state import STATE as PILOT_STATE
+    from viena.services.sim.model.truth import IST_ORIGIN
+
+    t0 = 1_717_236_000_000_000_000
+    frame = LocalFrame(*IST_ORIGIN)
+    points = [frame.geodetic_of_enu_exact(0.0, n_m, IST_ORIGIN[2])[:2] for n_m in range(0, 101, 10)]
+    lat, lon, _ = frame.geodetic_of_enu_exact(x_m, y_m, IST_ORIGIN[2])
+    pilot = Pilot()
+    pilot.on_estimate(Estimate(t_ns=t0, mode="navigating", position_valid=True, heading_valid=True,
+                               origin=IST_ORIGIN, x_m=x_m, y_m=y_m, yaw_rad=math.radians(yaw_deg),
+                               speed_mps=4.0, sigma_h_m=0.05, lat_deg=lat, lon_deg=lon))
+    pilot.set_route(checked(points, [None] * len(points), "points"))
+    assert pilot.start(t0) is None and pilot.tick(t0 + 10_000_000) is not None
+    if stop_reason is not None:
+        pilot.stop(stop_reason)
+    return PILOT_STATE.decode(PILOT_STATE.encode(pilot.snapshot(t0 + 10_000_000, 7, stop_reason is None)))
 
 
 def yaw_deg(rad: float) -> float:

@@ -7,7 +7,7 @@ import signal
 import time
 
 import pytest
-from laptop_helpers import SIM_HEALTH_KEY, start_sim, viena, wait_for_samples
+from laptop_helpers import SIM_HEALTH_KEY, pilot_state, start_sim, viena, wait_for_samples
 from rich.console import Console
 from vienatest import wait_until
 
@@ -81,7 +81,9 @@ def test_odd_and_unknown_samples_render_without_crashing():
                                           "watchdog": {"expired": True, "deadline_s": 0.2},
                                           "fault": "0x8611 following error", "new_field": [1, [2]]}),
         ("viena/elettra/estimator/state", {"mode": "coasting", "enu_var_m2": [-1.0, 4.0, 1.0],
-                                           "yaw_rad": 1.0, "waypoint": [38.7, -9.1]}),
+                                           "yaw_rad": 1.0, "from_a_newer_estimator": [38.7, -9.1]}),
+        ("viena/elettra/pilot/state", {"mode": "stopped", "reason": 3, "route_points": None,
+                                       "checkpoint_distance_m": "far", "wheel_cmd_deg": float("inf")}),
         ("viena/elettra/sim/truth", {"euler_rad": None, "speed_mps": "3"}),
         ("viena/elettra/some/thing", 42),
         ("viena/elettra/estimator/health", {"rates_hz": "x", "errors": None, "state": 7}),
@@ -93,8 +95,25 @@ def test_odd_and_unknown_samples_render_without_crashing():
     shown = text_of(model.view(now=1.5))
     for piece in ("armed", "no", "measured °", "5.73", "expired yes", "following error",
                   "coasting", "viena/elettra/some/thing", "undecodable: not valid msgpack",
-                  "estimator"):
+                  "estimator", "pilot", "stopped (3)"):
         assert piece in shown
+
+
+def test_the_pilot_has_its_panel_where_the_estimator_showed_one_target():
+    model = MonitorModel(data_stale_s=1.0)
+    model.sample("viena/elettra/estimator/state", {"mode": "navigating"}, now=5.0)
+    for i in range(21):                                   # the pilot's 20 Hz for a second
+        model.sample("viena/elettra/pilot/state", pilot_state(), now=5.0 + i * 0.05,
+                     schema="viena.pilot.state/1")
+    view = model.view(now=6.1)
+    assert view.pilot.rate_hz == pytest.approx(20.0) and not view.pilot.stale
+    assert view.pilot.key == "viena/elettra/pilot/state" and view.pilot not in view.others
+    shown = text_of(view)
+    pilot_panel = shown[shown.index("\npilot"):]                # below the estimator's panel
+    for piece in ("following", "2 of 11", "8.0 m at -3.6°, turn -3.6°", "-0.50 m", "4.3°", "20.0"):
+        assert piece in pilot_panel
+    assert "8.0 m at" not in shown[:shown.index("\npilot")]
+    assert "STALE" in text_of(model.view(now=8.0))
 
 
 @pytest.fixture

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from laptop_helpers import pilot_state
 
 import viena.monitor
 from viena.common.display import Alert
@@ -20,6 +21,8 @@ from viena.services.gnss.model.fix import FIX
 from viena.services.gnss.model.fix import monitor_view as gnss_view
 from viena.services.imu.model.sample import SAMPLE
 from viena.services.imu.model.sample import monitor_view as imu_view
+from viena.services.pilot.model.state import STATE as PILOT_STATE
+from viena.services.pilot.model.state import monitor_view as pilot_view
 from viena.services.sim.model.car import SimCar
 from viena.services.sim.model.truth import TRUTH, truth_sample
 from viena.services.sim.model.truth import monitor_view as truth_view
@@ -27,7 +30,8 @@ from viena.services.steering.model.state import STATE as STEERING_STATE
 from viena.services.steering.model.state import monitor_view as steering_view
 
 VIEWS = [(FIX, gnss_view), (SAMPLE, imu_view), (STEERING_STATE, steering_view),
-         (ESTIMATOR_STATE, estimator_view), (TRUTH, truth_view), (HEALTH, health_view)]
+         (ESTIMATOR_STATE, estimator_view), (PILOT_STATE, pilot_view), (TRUTH, truth_view),
+         (HEALTH, health_view)]
 
 
 def test_the_simulated_cars_truth_and_a_fresh_estimate_read_as_numbers():
@@ -39,7 +43,32 @@ def test_the_simulated_cars_truth_and_a_fresh_estimate_read_as_numbers():
     assert cells["speed"].endswith(" m/s") and cells["yaw"].endswith("°") and "-" not in cells.values()
     state = estimator_view(Estimator({"origin": [38.7369, -9.1395, 100.0]}).state())
     assert state["mode"] == "waiting" and state["heading"] == "none (not valid)"
-    assert state["σ pos"].endswith(" m") and "waypoint" not in state
+    assert state["σ pos"].endswith(" m")
+    # the estimator shows its own estimate and nothing of a route: that is the pilot's panel
+    assert list(state) == ["mode", "position ENU m", "σ pos", "σ h/v", "speed", "yaw", "pitch / roll",
+                           "heading", "gnss used"]
+
+
+def test_the_pilot_shows_its_mode_cross_track_and_the_way_to_the_next_checkpoint():
+    """Half a metre east of a route north, 12 m along: the next checkpoint (20 m north) is
+    8 m away, a little to the left (bearing and turn negative, the Titans' signs)."""
+    cells = pilot_view(pilot_state(x_m=0.5, y_m=12.0))
+    assert list(cells) == ["mode", "checkpoint", "next", "cross-track", "wheel"]
+    assert cells["mode"] == "following" and not isinstance(cells["mode"], Alert)
+    assert cells["checkpoint"] == "2 of 11"
+    assert cells["next"] == "8.0 m at -3.6°, turn -3.6°"
+    assert cells["cross-track"] == "-0.50 m"                  # right of the route
+    assert cells["wheel"] == "4.3°"                           # steering back left
+    facing_nnw = pilot_view(pilot_state(x_m=0.5, y_m=12.0, yaw_deg=30.0))    # compass heading -30°
+    assert facing_nnw["next"] == "8.0 m at -3.6°, turn 26.4°"     # now the checkpoint is to the right
+
+
+def test_a_stopped_pilot_asks_to_be_noticed_and_no_route_reads_as_such():
+    stopped = pilot_view(pilot_state(stop_reason="estimate stale (0.35 s)"))
+    assert stopped["mode"] == "stopped (estimate stale (0.35 s))" and isinstance(stopped["mode"], Alert)
+    assert stopped["wheel"] == "-"                            # nothing commanded any more
+    idle = pilot_view({"t": 1, "seq": 0, "mode": "idle", "route_points": 0, "checkpoint": None})
+    assert idle == {"mode": "idle", "checkpoint": "no route", "next": "-", "cross-track": "-", "wheel": "-"}
 
 
 def test_errors_in_a_health_report_ask_to_be_noticed():

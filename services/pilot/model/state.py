@@ -3,13 +3,13 @@
 Angles in degrees as their names say (people read them; the Titans' geo values were
 degrees too), distances in m. Signs: `cross_track_m` > 0 when the car is left of the
 route; the heading errors are the way to go minus the car's compass heading, +-180 deg,
-> 0: turn right (the Titans' convention, docs/pilot.md#state); `wheel_cmd_deg` > 0 left
+> 0: turn right (the Titans' convention, docs/pilot.md#keys-and-state); `wheel_cmd_deg` > 0 left
 (the steering's convention). Fields about the route and the car are null when there is
 no route or no usable estimate.
 """
 from __future__ import annotations
 
-from viena.common.display import fmt_num
+from viena.common.display import Alert, fmt_num, fmt_unit, number
 from viena.common.schema import F, Schema
 
 MODES = ("idle", "following", "finished", "stopped")
@@ -61,16 +61,21 @@ def path_sample(route, t_ns: int) -> dict:
 
 
 def monitor_view(state: dict) -> dict[str, str]:
-    """How the monitor shows a pilot state."""
+    """How the monitor shows a pilot state (any map): what it does, and the way to the next
+    checkpoint as the Titans' geo node gave it; a stop asks to be noticed."""
     mode = str(state.get("mode", "-"))
     if state.get("reason"):
         mode += f" ({state['reason']})"
+    distance = number(state.get("checkpoint_distance_m"))
+    points = number(state.get("route_points"))
+    wheel = number(state.get("wheel_cmd_deg"))
     return {
-        "mode": mode,
-        "checkpoint": f"{fmt_num(state.get('checkpoint'))} of {fmt_num(state.get('route_points'))}",
-        "next": (f"{fmt_num(state.get('checkpoint_distance_m'), 1)} m at "
-                 f"{fmt_num(state.get('checkpoint_bearing_deg'), 1)}°, "
+        "mode": Alert(mode) if state.get("mode") == "stopped" else mode,
+        "checkpoint": "no route" if points == 0 else
+                      f"{fmt_num(state.get('checkpoint'))} of {fmt_num(state.get('route_points'))}",
+        "next": "-" if distance is None else
+                (f"{distance:.1f} m at {fmt_num(state.get('checkpoint_bearing_deg'), 1)}°, "
                  f"turn {fmt_num(state.get('checkpoint_heading_error_deg'), 1)}°"),
-        "cross-track": f"{fmt_num(state.get('cross_track_m'), 2)} m",
-        "wheel": f"{fmt_num(state.get('wheel_cmd_deg'), 1)}°",
+        "cross-track": fmt_unit(state.get("cross_track_m"), "m"),
+        "wheel": "-" if wheel is None else f"{wheel:.1f}°",
     }
