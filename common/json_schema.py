@@ -75,7 +75,7 @@ def field_schema(check: Check) -> dict | None:
     if kind == "optional":
         return field_schema(made["inner"])
     if kind == "struct":
-        return _object(made["inner"].fields)
+        return _object(made["fields"])
     raise ValueError(f"no JSON Schema for the field check {check!r}: teach common/json_schema.py")
 
 
@@ -128,16 +128,11 @@ def _inner_pruner(check: Check) -> Pruner | None:
     if kind == "optional":
         return _inner_pruner(made["inner"])
     if kind == "struct":
-        return _pruner(made["inner"].fields)
+        return _pruner(made["fields"])
     return None
 
 
 def _made_by(check: Check) -> tuple[str, dict[str, Any]]:
-    """Which F builder made `check` ('vec' for F.vec(3)'s check) and the values it closed
-    over (n, item, allowed, inner): read off the function, as F keeps no other record."""
-    qualname = getattr(check, "__qualname__", "")
-    code, cells = getattr(check, "__code__", None), getattr(check, "__closure__", None) or ()
-    if not qualname.startswith("F.") or code is None:
-        return "", {}
-    kind = qualname.split(".")[1]
-    return kind, {name: cell.cell_contents for name, cell in zip(code.co_freevars, cells)}
+    """Which F builder made `check` ('vec' for F.vec(3)'s check) and with what (n, item,
+    allowed, inner, fields), as common/schema.py records it; ("", {}) for any other."""
+    return getattr(check, "made", ("", {}))

@@ -63,6 +63,16 @@ def _fast(expr: str) -> Callable[[Check], Check]:
 _fast("type(v) is float and v - v == 0.0")(_finite_float)
 
 
+def _made(kind: str, **values: Any) -> Callable[[Check], Check]:
+    """Record which F builder made a check and with what (`F.vec(3)`: "vec", n=3), so
+    tools that describe a schema in other terms (common/json_schema.py) read it here
+    rather than guess it from the function."""
+    def mark(fn: Check) -> Check:
+        fn.made = (kind, values)  # type: ignore[attr-defined]
+        return fn
+    return mark
+
+
 class F:
     """Field checks. Each takes a value and returns the value to keep, or raises Invalid."""
 
@@ -122,6 +132,7 @@ class F:
                 return [_finite_float(x) for x in v]
             raise Invalid(f"expected a list of {n} finite numbers", v)
         items = " and ".join(f"type(v[{i}]) is float and v[{i}] - v[{i}] == 0.0" for i in range(n))
+        check = _made("vec", n=n)(check)
         return _fast(f"type(v) is list and len(v) == {n}" + (f" and {items}" if n <= 6 else " and False"))(check)
 
     @staticmethod
@@ -130,7 +141,7 @@ class F:
             if isinstance(v, (list, tuple)):
                 return [item(x) for x in v]
             raise Invalid("expected a list", v)
-        return check
+        return _made("list", item=item)(check)
 
     @staticmethod
     def enum(*names: builtins.str) -> Check:
@@ -140,11 +151,12 @@ class F:
             if v in allowed:
                 return v
             raise Invalid(f"expected one of {sorted(allowed)}", v)
-        return check
+        return _made("enum", allowed=allowed)(check)
 
     @staticmethod
     def optional(inner: Check) -> Check:
         """May be missing or nil."""
+        @_made("optional", inner=inner)
         def check(v):
             return None if v is None else inner(v)
         check.optional = True  # type: ignore[attr-defined]
@@ -157,6 +169,7 @@ class F:
         """A nested map with its own fields."""
         inner = _Fields(fields)
 
+        @_made("struct", fields=fields)
         def check(v):
             return inner.check(v, "", strict=False)
         return check
