@@ -44,9 +44,13 @@ def loop_route(every: int = 1) -> Route:
     """The sim's default loop (services/sim/model/route.py) as lat/lon checkpoints, one per
     `every` metre-spaced points, closed by its first point again."""
     pts = default_route().points[::every]
+    return _route_of(np.vstack([pts, pts[:1]]))
+
+
+def _route_of(points_enu_m) -> Route:
+    """A route through the sim's ENU points (at its origin), as lat/lon checkpoints."""
     frame = LocalFrame(*IST_ORIGIN)
-    latlon = [frame.geodetic_of_enu_exact(e, n, IST_ORIGIN[2])[:2] for e, n in pts]
-    latlon.append(latlon[0])
+    latlon = [frame.geodetic_of_enu_exact(e, n, IST_ORIGIN[2])[:2] for e, n in points_enu_m]
     return checked(latlon, [None] * len(latlon), "points")
 
 
@@ -69,7 +73,7 @@ class Drive:
 
     def figures(self) -> str:
         e = np.abs(self.cross_track_m)
-        text = (f"RMS {math.sqrt(float(np.mean(e ** 2))):.3f} m, p95 {np.percentile(e, 95):.3f} m, "
+        text = (f"RMS {rms(e):.3f} m, p95 {np.percentile(e, 95):.3f} m, "
                 f"max {e.max():.3f} m")
         if self.estimate_error_m is not None and len(self.estimate_error_m):
             text += f" (the estimate's own error: RMS {rms(self.estimate_error_m):.3f} m)"
@@ -127,10 +131,7 @@ def loop_route_from(x_m: float, y_m: float, ahead_m: float = 2.0) -> Route:
     pts = default_route().points
     k = int(np.argmin(np.hypot(pts[:, 0] - x_m, pts[:, 1] - y_m)))
     k = (k + int(round(ahead_m))) % len(pts)
-    ring = np.vstack([pts[k:], pts[:k], pts[k:k + 1]])
-    frame = LocalFrame(*IST_ORIGIN)
-    latlon = [frame.geodetic_of_enu_exact(e, n, IST_ORIGIN[2])[:2] for e, n in ring]
-    return checked(latlon, [None] * len(latlon), "points")
+    return _route_of(np.vstack([pts[k:], pts[:k], pts[k:k + 1]]))
 
 
 class LiveLoop:

@@ -83,7 +83,7 @@ class Bridge:
         self.session, self.keyexpr, self.channels = session, keyexpr, channels
         self.downsampler = Downsampler(max_rate_hz)
         self.clock = ReceiveClock()
-        self.received = self.downsampled = self.dropped = 0
+        self.dropped = 0                       # samples the converting thread had no room for
         self.silence = SilenceWarning("viena foxglove", [keyexpr])
         self.queue_samples = queue_samples
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
@@ -97,12 +97,10 @@ class Bridge:
     def _on_sample(self, sample) -> None:
         """zenoh's thread: leave what nobody watches, thin out, stamp, queue; never block."""
         self.silence.heard()
-        self.received += 1
         key, encoding = str(sample.key_expr), str(sample.encoding)
         if not self.channels.wanted(key, encoding):
             return
         if not self.downsampler.keep(key, time.monotonic()):
-            self.downsampled += 1
             return
         if self._queue.qsize() >= self.queue_samples:     # the converting thread fell behind
             self.dropped += 1

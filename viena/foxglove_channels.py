@@ -16,7 +16,7 @@ import foxglove
 import foxglove.channels
 
 from viena.common.errors import SampleError
-from viena.foxglove_messages import Converter, Route
+from viena.foxglove_messages import STATEFUL_KINDS, Converter, Route
 
 #: channel metadata: the zenoh encoding the key's samples came with
 ENCODING_METADATA = "viena_encoding"
@@ -29,7 +29,15 @@ class _KeyChannels:
     derived: dict[str, object] = field(default_factory=dict)      # topic -> typed channel
 
     def watched(self) -> bool:
-        return self.json.has_sinks() or any(ch.has_sinks() for ch in self.derived.values())
+        return self.keeps_state or self.json.has_sinks() or self.derived_watched()
+
+    def derived_watched(self) -> bool:
+        return any(ch.has_sinks() for ch in self.derived.values())
+
+    @property
+    def keeps_state(self) -> bool:
+        """Its samples feed other channels (STATEFUL_KINDS): converted even when unwatched."""
+        return self.route.kind in STATEFUL_KINDS
 
 
 class FoxgloveChannels:
@@ -64,7 +72,7 @@ class FoxgloveChannels:
         if channels.json.has_sinks():
             channels.json.log(channels.route.json(value), log_time=log_time)
             self.logged += 1
-        if not any(ch.has_sinks() for ch in channels.derived.values()):
+        if not channels.keeps_state and not channels.derived_watched():
             return True
         for derived in self.converter.derived(channels.route, value):
             channels.derived[derived.topic].log(derived.message, log_time=log_time)
@@ -92,10 +100,6 @@ class FoxgloveChannels:
     def keys(self) -> int:
         """How many keys have a channel."""
         return len({key for key, _ in self._keys})
-
-    @property
-    def topics(self) -> list[str]:
-        return sorted({k for k, _ in self._keys} | set(self._typed))
 
     def close(self) -> None:
         for channels in self._keys.values():

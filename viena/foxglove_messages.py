@@ -34,8 +34,6 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-import pymap3d
 from foxglove.messages import (
     Color,
     FrameTransform,
@@ -62,6 +60,7 @@ from viena.common.json_schema import JsonForm
 from viena.common.payload import to_jsonable
 from viena.common.schema import Schema, schema_of
 from viena.recording import decode_value
+from viena.services.pilot.model.path import checkpoints_enu
 
 #: the modules that own the car's schemas: importing them registers the schemas by name
 SCHEMA_OWNERS = ("viena.services.gnss.model.fix", "viena.services.imu.model.sample",
@@ -96,6 +95,12 @@ MAX_CHECKPOINT_MARKS = 100
 CHECKPOINT_SIZE_M = 0.6
 #: a receiver's local frame (for its velocity and covariance in ENU) is made anew this far away
 FRAME_REUSE_M = 1000.0
+
+
+#: kinds whose conversion keeps what other channels need: the estimator's origin (the
+#: route's 3D line is drawn in its ENU frame) and each service's error counts (its Log
+#: says what grew): converted whether or not anyone watches them
+STATEFUL_KINDS = frozenset({"estimator", "health"})
 
 
 @dataclass(frozen=True)
@@ -331,9 +336,7 @@ def route_scene(path: dict, origin: tuple[float, float, float]) -> SceneUpdate:
     """The route as a line (and its checkpoints as spheres) in frame `enu` at the
     estimator's origin, on the origin's level plane (checkpoints have no height), as the
     pilot sees it (services/pilot/model/path.py). One entity, replaced by the next."""
-    lat = np.asarray(path["lat_deg"], float)
-    lon = np.asarray(path["lon_deg"], float)
-    east, north, _ = pymap3d.geodetic2enu(lat, lon, np.full_like(lat, origin[2]), *origin)
+    east, north = checkpoints_enu(path["lat_deg"], path["lon_deg"], origin).T
     points = [Point3(x=float(e), y=float(n), z=0.0) for e, n in zip(east, north)]
     size = Vector3(x=CHECKPOINT_SIZE_M, y=CHECKPOINT_SIZE_M, z=CHECKPOINT_SIZE_M)
     spheres = [SpherePrimitive(pose=Pose(position=Vector3(x=float(east[i]), y=float(north[i]), z=0.0),

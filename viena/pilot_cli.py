@@ -190,6 +190,7 @@ def _one_state(session, key: str, timeout_s: float) -> dict:
 
 def _record(session, link, args) -> int:
     """A point every --every-m metres of valid estimate, written as a GeoJSON Feature."""
+    from viena.services.pilot.model.estimate import estimate_of
     from viena.services.pilot.model.route import MIN_SPACING_M, checked
 
     if not args.every_m >= MIN_SPACING_M:
@@ -205,15 +206,13 @@ def _record(session, link, args) -> int:
     try:
         while not stop.is_set() and (end is None or time.monotonic() < end):
             try:
-                state = unpack(estimates.get(timeout=0.2), "estimator state")
-            except queue.Empty:
+                est = estimate_of(unpack(estimates.get(timeout=0.2), "estimator state"))
+            except (queue.Empty, InputError):         # nothing yet, or a state the schema refuses
                 continue
-            except InputError:
+            if (not est.position_valid or est.lat_deg is None or est.lon_deg is None
+                    or est.sigma_h_m > args.max_sigma_m):
                 continue
-            point = _recordable(state, args.max_sigma_m)
-            if point is None:
-                continue
-            enu, latlon = point
+            enu, latlon = (est.x_m, est.y_m), (est.lat_deg, est.lon_deg)
             if last_enu is None or math.dist(enu, last_enu) >= args.every_m:
                 points.append(latlon)
                 last_enu = enu
@@ -229,19 +228,6 @@ def _record(session, link, args) -> int:
     Path(args.output).write_text(json.dumps(route.to_geojson(), indent=1) + "\n")
     print(f"{len(route)} points, {route.length_m:.0f} m written to {args.output}")
     return 0
-
-
-def _recordable(state, max_sigma_m: float):
-    """((e, n), (lat, lon)) of a valid, certain enough estimate, else None."""
-    if not isinstance(state, dict) or not state.get("position_valid"):
-        return None
-    enu, lat, lon, sigma = state.get("enu_m"), state.get("lat_deg"), state.get("lon_deg"), state.get("sigma_h_m")
-    numbers = [lat, lon, sigma, *(enu or [])[:2]]
-    if len(numbers) != 5 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in numbers):
-        return None
-    if sigma > max_sigma_m:
-        return None
-    return (float(enu[0]), float(enu[1])), (float(lat), float(lon))
 
 
 def main(argv: list[str] | None = None) -> int:

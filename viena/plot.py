@@ -103,12 +103,10 @@ class RouteSeen:
 
     def to_map(self, origin) -> None:
         """East, north of the checkpoints at the origin's height (they are places on the
-        road, as the pilot takes them: services/pilot/model/path.py)."""
-        import pymap3d
+        road, as the pilot takes them)."""
+        from viena.services.pilot.model.path import checkpoints_enu
 
-        lat, lon = np.asarray(self.lat_deg, float), np.asarray(self.lon_deg, float)
-        e, n, _ = pymap3d.geodetic2enu(lat, lon, np.full_like(lat, origin[2]), *origin)
-        self.enu = np.column_stack([e, n])
+        self.enu = checkpoints_enu(self.lat_deg, self.lon_deg, origin)
 
 
 def _number(v) -> float | None:

@@ -31,7 +31,6 @@ import threading
 import time
 from dataclasses import dataclass
 
-import msgpack
 import zenoh
 
 from viena.common.errors import ConfigError, InputError, PayloadError
@@ -53,7 +52,7 @@ from viena.services.steering.model.state import STATE as STEERING_STATE
 #: who this process is on a secured car (a certificate of role `autopilot`, docs/pilot.md)
 IDENTITY = "autopilot"
 ACCEPTED, REJECTED = "accepted", "rejected"
-_STEERING = STEERING_STATE.reader("t", "armed", "owner", "trip")
+_STEERING = STEERING_STATE.reader("armed", "owner", "trip")
 #: steering states arriving this soon after the arm may predate it
 ARM_MARGIN_S = 0.1
 #: how often the route held is published again on pilot/path
@@ -109,12 +108,10 @@ class PilotService(Service):
             self.declare_queryable(key, self._on_query(name, key))
             self.declare_subscriber(key, self._on_put(name))
         self._estimates = self.declare_subscriber(self.keys.key(s.estimate_key), zenoh.handlers.RingChannel(1))
-        self._steering: tuple | None = None           # (read monotonic, t, armed, owner, trip)
+        self._steering: tuple | None = None           # (read monotonic, armed, owner, trip)
         self._owner: str | None = None
         self._armed_at = 0.0                           # monotonic, when the arm was granted
         if s.setpoints_as == "put":
-            self._setpoint_pub = self.session.declare_publisher(self.keys.key("steering", "setpoint"))
-            self._declared.append(self._setpoint_pub)
             self._steering_states = self.declare_subscriber(self.keys.key("steering", "state"),
                                                             zenoh.handlers.RingChannel(1))
         self.declare_subscriber(self.keys.key("steering", "estop"), lambda _s: self._queue(("estop", None, None)))
@@ -128,6 +125,9 @@ class PilotService(Service):
         thread = getattr(self, "_thread", None)
         if thread is not None:
             thread.join(timeout=1.5)
+        client = getattr(self, "client", None)
+        if client is not None:
+            client.close()
 
     # -- zenoh callbacks: never block ---------------------------------------------------------------
     def _on_query(self, kind: str, own_key: str):
@@ -223,11 +223,11 @@ class PilotService(Service):
         if sample is None:
             return
         try:
-            t, armed, owner, trip = _STEERING(unpack(sample.payload.to_bytes(), "steering state"))
+            armed, owner, trip = _STEERING(unpack(sample.payload.to_bytes(), "steering state"))
         except InputError:
             self.health.error("bad_steering_state")
             return
-        self._steering = (time.monotonic(), t, armed, owner, trip)
+        self._steering = (time.monotonic(), armed, owner, trip)
 
     def _arm(self) -> bool:
         try:
@@ -247,14 +247,11 @@ class PilotService(Service):
         if self.settings.setpoints_as == "put":
             self._setpoint_put(angle_deg)
             return
-        self.client.timeout_s = self.settings.steering_timeout_s
         try:
-            reply = self.client.setpoint(angle_deg)
+            reply = self.client.setpoint(angle_deg, timeout_s=self.settings.steering_timeout_s)
         except ConflictingReplies as exc:
             self._conflict(exc)
             return
-        finally:
-            self.client.timeout_s = self.settings.arm_timeout_s
         self.health.count("setpoint")
         self._note_latency()
         now = time.monotonic()
@@ -283,7 +280,7 @@ class PilotService(Service):
                 why = "no steering state: is viena-steering running?"
         else:
             self._unanswered_since = None
-            received, _, armed, owner, trip = steering
+            received, armed, owner, trip = steering
             # judged by when it arrived here (not its stamp: the steering may run on another
             # machine's clock), with a margin for a state already on its way at the arm
             if received > self._armed_at + ARM_MARGIN_S and not (armed and owner == self._owner):
@@ -294,8 +291,7 @@ class PilotService(Service):
             self.client.lease = None if why.startswith("steering stopped") else self.client.lease
             self._give_back_lease()
             return
-        self._setpoint_pub.put(msgpack.packb({"angle_deg": angle_deg, "lease": self.client.lease}),
-                               encoding=zenoh.Encoding("application/msgpack"))
+        self.client.put_setpoint(angle_deg)
         self.health.count("setpoint")
         self._note_latency()
 

@@ -39,12 +39,16 @@ class SteeringClient:
         self.lease: str | None = None
         self.replier: str | None = None        # the steering service that granted the lease
         self.last_replier: str | None = None
+        self._setpoint_pub = None              # for put_setpoint, declared on first use
 
-    def ask(self, name: str, payload: dict) -> dict:
+    def ask(self, name: str, payload: dict, timeout_s: float | None = None) -> dict:
+        """One command, answered by exactly one steering service; `timeout_s` for this one
+        question (default: the client's)."""
         import zenoh
 
         replies = list(self.session.get(KEY.format(car=self.car, name=name),
-                                        payload=json.dumps(payload).encode(), timeout=self.timeout_s,
+                                        payload=json.dumps(payload).encode(),
+                                        timeout=self.timeout_s if timeout_s is None else timeout_s,
                                         target=zenoh.QueryTarget.ALL,
                                         consolidation=zenoh.ConsolidationMode.NONE))
         # the replying session (its zenoh id), not the queryable: one service has several
@@ -68,8 +72,25 @@ class SteeringClient:
             self.replier = self.last_replier
         return reply
 
-    def setpoint(self, angle_deg: float) -> dict:
-        return self.ask("setpoint", {"angle_deg": angle_deg, "lease": self.lease})
+    def setpoint(self, angle_deg: float, timeout_s: float | None = None) -> dict:
+        return self.ask("setpoint", {"angle_deg": angle_deg, "lease": self.lease}, timeout_s)
+
+    def put_setpoint(self, angle_deg: float) -> None:
+        """A setpoint as a put, with the lease: nothing comes back (the steering's state says
+        whether it still steers for this lease), so a stream costs a fraction of `setpoint`'s."""
+        import msgpack
+        import zenoh
+
+        if self._setpoint_pub is None:
+            self._setpoint_pub = self.session.declare_publisher(KEY.format(car=self.car, name="setpoint"))
+        self._setpoint_pub.put(msgpack.packb({"angle_deg": angle_deg, "lease": self.lease}),
+                               encoding=zenoh.Encoding("application/msgpack"))
+
+    def close(self) -> None:
+        """Undeclare what the client declared (the session stays open)."""
+        if self._setpoint_pub is not None:
+            self._setpoint_pub.undeclare()
+            self._setpoint_pub = None
 
     def disarm(self) -> dict:
         reply = self.ask("arm", {"arm": False, "lease": self.lease})

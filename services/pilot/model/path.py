@@ -25,6 +25,16 @@ from viena.services.pilot.model.route import Route
 TIE_M = 0.5
 
 
+def checkpoints_enu(lat_deg, lon_deg, origin: tuple[float, float, float]) -> np.ndarray:
+    """Checkpoints as (east, north) rows in metres in the ENU frame at origin (lat_deg,
+    lon_deg, height_m), taken at the origin's height: they are places on the road, with
+    no height of their own. Every picture of a route (plot, Foxglove) uses this, so it
+    shows the route where the pilot follows it."""
+    lat, lon = np.asarray(lat_deg, float), np.asarray(lon_deg, float)
+    e, n, _ = pymap3d.geodetic2enu(lat, lon, np.full_like(lat, origin[2]), *origin)
+    return np.column_stack([e, n])
+
+
 @dataclass(frozen=True)
 class Projection:
     """The car's nearest place on the path."""
@@ -57,10 +67,8 @@ class Path:
     def from_route(cls, route: Route, origin: tuple[float, float, float]) -> Path:
         """The route in the ENU frame at origin (lat_deg, lon_deg, height_m); checkpoints
         taken at the origin's height (they are places on the road)."""
-        lat = np.array([p[0] for p in route.points])
-        lon = np.array([p[1] for p in route.points])
-        e, n, _ = pymap3d.geodetic2enu(lat, lon, np.full_like(lat, origin[2]), *origin)
-        return cls(np.column_stack([e, n]), route.speeds_mps)
+        lat_deg, lon_deg = zip(*route.points)
+        return cls(checkpoints_enu(lat_deg, lon_deg, origin), route.speeds_mps)
 
     # -- queries --------------------------------------------------------------------------------
     def project(self, x_m: float, y_m: float, near_s_m: float | None = None,

@@ -16,12 +16,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from viena.common.rotation import wrap_angle
 from viena.common.settings import part
 from viena.services.pilot.model.estimate import Estimate
 from viena.services.pilot.model.path import Path, Projection
 from viena.services.pilot.model.route import Route, RouteError, distance_to_route_m
 from viena.services.pilot.model.safety import SafetySettings, estimate_problem, start_problem, tracking_problem
-from viena.services.pilot.model.tracking import TRACKERS, Command, TrackingSettings, normalize_rad
+from viena.services.pilot.model.tracking import TRACKERS, Command, TrackingSettings
 
 
 @dataclass(frozen=True)
@@ -170,7 +171,7 @@ class Pilot:
 def _turn_right_deg(way_yaw_rad: float, yaw_rad: float) -> float:
     """A way minus the heading as the Titans had it: compass degrees, > 0 turn right
     (a compass heading is clockwise, minus the ENU yaw)."""
-    return math.degrees(normalize_rad(yaw_rad - way_yaw_rad))
+    return math.degrees(wrap_angle(yaw_rad - way_yaw_rad))
 
 
 def checkpoint_guidance(path: Path, s_m: float, x_m: float, y_m: float, yaw_rad: float) -> dict:
@@ -182,5 +183,5 @@ def checkpoint_guidance(path: Path, s_m: float, x_m: float, y_m: float, yaw_rad:
     dx, dy = float(path.points[i, 0]) - x_m, float(path.points[i, 1]) - y_m
     bearing_yaw = math.atan2(-dx, dy)                        # the bearing as a yaw (CCW)
     return {"checkpoint": i, "checkpoint_distance_m": math.hypot(dx, dy),
-            "checkpoint_bearing_deg": math.degrees(normalize_rad(-bearing_yaw)),
+            "checkpoint_bearing_deg": math.degrees(wrap_angle(-bearing_yaw)),
             "checkpoint_heading_error_deg": _turn_right_deg(bearing_yaw, yaw_rad)}

@@ -21,7 +21,9 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
+import numpy as np
 import pymap3d
 
 from viena.common.errors import SampleError
@@ -52,13 +54,14 @@ class Route:
     def __len__(self) -> int:
         return len(self.points)
 
-    def legs_m(self) -> list[float]:
-        """Length of each leg, on the ellipsoid."""
-        return [_distance_m(a, b) for a, b in zip(self.points, self.points[1:])]
+    @cached_property
+    def legs_m(self) -> tuple[float, ...]:
+        """Length of each leg, on the ellipsoid (worked out once: a route is never changed)."""
+        return tuple(float(v) for v in _distances_m(self.points[:-1], self.points[1:]))
 
-    @property
+    @cached_property
     def length_m(self) -> float:
-        return sum(self.legs_m())
+        return sum(self.legs_m)
 
     def to_geojson(self) -> dict:
         """The route as a GeoJSON Feature (what `pilot/route` answers, what `route show` prints)."""
@@ -69,9 +72,12 @@ class Route:
                 "geometry": {"type": "LineString", "coordinates": [[lon, lat] for lat, lon in self.points]}}
 
 
-def _distance_m(a: tuple[float, float], b: tuple[float, float]) -> float:
-    e, n, _ = pymap3d.geodetic2enu(b[0], b[1], 0.0, a[0], a[1], 0.0)
-    return math.hypot(float(e), float(n))
+def _distances_m(a, b) -> np.ndarray:
+    """Horizontal distances from each place of `a` to the same-numbered place of `b`
+    ((lat_deg, lon_deg) pairs; either may be one place), in one vectorised call."""
+    a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
+    e, n, _ = pymap3d.geodetic2enu(b[:, 0], b[:, 1], 0.0, a[:, 0], a[:, 1], 0.0)
+    return np.hypot(e, n)
 
 
 # -- reading ----------------------------------------------------------------------------------
@@ -264,18 +270,18 @@ def checked(points: list, speeds: list, form: str, what: str = "point") -> Route
             raise RouteError(f"{name}: speed must be a finite number >= 0 m/s, got {_shown(speed)}")
         out.append((float(lat), float(lon)))
         out_speeds.append(None if speed is None else float(speed))
-    for i, (a, b) in enumerate(zip(out, out[1:])):
-        leg = _distance_m(a, b)
+    route = Route(tuple(out), tuple(out_speeds), form)
+    for i, leg in enumerate(route.legs_m):
         if leg < MIN_SPACING_M:
             raise RouteError(f"{what}s {i + first} and {i + first + 1} are the same place "
                              f"({leg:.2f} m apart): drop one")
         if leg > MAX_LEG_M:
             raise RouteError(f"{what}s {i + first} and {i + first + 1} are {leg / 1000:.1f} km apart: "
                              f"at most {MAX_LEG_M:.0f} m between checkpoints")
-    return Route(tuple(out), tuple(out_speeds), form)
+    return route
 
 
 def distance_to_route_m(route: Route, lat_deg: float, lon_deg: float) -> float:
     """How far a place is from the route's nearest point (between checkpoints the
     legs are at most MAX_LEG_M, so this is what `max_route_distance_m` needs)."""
-    return min(_distance_m((lat_deg, lon_deg), p) for p in route.points)
+    return float(_distances_m([(lat_deg, lon_deg)], route.points).min())

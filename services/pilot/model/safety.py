@@ -9,10 +9,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from viena.common.rotation import wrap_angle
 from viena.common.settings import setting
 from viena.services.pilot.model.estimate import Estimate
 from viena.services.pilot.model.path import Projection
-from viena.services.pilot.model.tracking import normalize_rad
 
 #: estimator modes whose position and heading the pilot may steer by: the normal mode,
 #: dead reckoning through a GNSS gap (its sigma says how long that is good for), and GNSS
@@ -58,7 +58,7 @@ def start_problem(where: Projection, path_length_m: float, yaw_rad: float, s: Sa
         return f"too far from the route: {off:.1f} m (at most {s.max_start_offset_m:.1f} m)"
     if where.s_m >= path_length_m:
         return "at the end of the route already"
-    heading_deg = math.degrees(abs(normalize_rad(where.path_yaw_rad - yaw_rad)))
+    heading_deg = math.degrees(abs(wrap_angle(where.path_yaw_rad - yaw_rad)))
     if heading_deg > s.max_start_heading_deg:
         return (f"facing {heading_deg:.0f} deg away from the route's way "
                 f"(at most {s.max_start_heading_deg:.0f} deg)")

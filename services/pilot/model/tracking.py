@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from viena.common.rotation import wrap_angle
 from viena.common.settings import setting
 from viena.services.pilot.model.path import Path, Projection
 
@@ -46,11 +47,6 @@ class Command:
     target_x_m: float
     target_y_m: float
     lookahead_m: float
-
-
-def normalize_rad(angle: float) -> float:
-    """Map to [-pi, pi)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def lookahead_m(speed_mps: float, s: TrackingSettings) -> float:
@@ -81,7 +77,7 @@ def stanley(path: Path, where: Projection, x_m: float, y_m: float, yaw_rad: floa
             speed_mps: float, s: TrackingSettings) -> Command:
     fx, fy = x_m - s.wheelbase_m * math.sin(yaw_rad), y_m + s.wheelbase_m * math.cos(yaw_rad)
     front = path.project(fx, fy, near_s_m=where.s_m + s.wheelbase_m)
-    heading_error = normalize_rad(front.path_yaw_rad - yaw_rad)
+    heading_error = wrap_angle(front.path_yaw_rad - yaw_rad)
     correction = math.atan2(s.stanley_gain * front.cross_track_m, s.stanley_soft_mps + max(0.0, speed_mps))
     return Command(_clamp_wheel(heading_error - correction, s), front.x_m, front.y_m, s.wheelbase_m)
 
