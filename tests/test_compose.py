@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from vienatest import VIENA, sim_profile_up, viena, wait_until
 
-pytestmark = pytest.mark.slow  # whole profiles under supervisord
+pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=11)]  # whole profiles under supervisord
 
 
 def alive(pid: int) -> bool:

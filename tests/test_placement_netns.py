@@ -18,6 +18,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -26,7 +27,7 @@ from vienatest import Processes
 
 from viena.paths import compose_dir
 
-pytestmark = pytest.mark.slow  # two hosts, each with a whole profile
+pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=35)]  # two hosts, each with a whole profile
 
 PY = sys.executable
 TAG = f"{os.getpid() % 100000}"
@@ -84,10 +85,13 @@ class Host:
 
 
 @pytest.fixture
-def hosts(tmp_path):
+def hosts():
     why = netns_available()
     if why:
         pytest.skip(why)
+    # a short directory: supervisord's socket path must fit in AF_UNIX's 108 bytes, which
+    # tmp_path under a parallel worker (…/popen-gw2/test_estimator_moves_…/) does not leave
+    tmp_path = Path(tempfile.mkdtemp(prefix="viena-"))
     shutil.copytree(compose_dir(), tmp_path / "compose")
     pi, laptop = Host(f"viena-pi-{TAG}", tmp_path), Host(f"viena-laptop-{TAG}", tmp_path)
     veth_pi, veth_laptop = f"vpi{TAG}", f"vlt{TAG}"
@@ -107,6 +111,7 @@ def hosts(tmp_path):
         for host in (pi, laptop):
             host.viena("down", "--profile", "pi" if host is pi else "laptop", timeout=60)
             host.cleanup()
+        shutil.rmtree(tmp_path, ignore_errors=True)
     assert not any(name in ip("netns", "list").stdout for name in (pi.name, laptop.name))
 
 

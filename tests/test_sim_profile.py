@@ -29,7 +29,7 @@ from viena.services.sim.model.truth import TRUTH
 from viena.services.steering.client import SteeringClient
 from viena.services.steering.model.state import STATE as STEERING
 
-pytestmark = pytest.mark.slow  # the whole sim profile
+pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=5)]  # the whole sim profile
 
 ZENOH_CLI = shutil.which("zenoh", path=str(Path(sys.executable).parent)) or shutil.which("zenoh")
 LEVER_ARMS = {"gnss0": (-0.5, 1.0, 1.5), "gnss1": (0.5, 1.0, 1.5)}

@@ -115,6 +115,7 @@ def test_the_pi_profile_on_a_machine_without_the_car(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.car
 def test_the_sim_profile_up_is_healthy(tmp_path):
     with sim_profile_up(tmp_path / "run") as (env, router):
         run = viena("doctor", "--recordings", tmp_path, env=env, timeout=120)     # the running profile

@@ -98,6 +98,7 @@ def test_a_misspelt_key_is_said_and_records_nothing(router, tmp_path):
     assert not out.exists() and not out.with_name("drive.mcap.part").exists()
 
 
+@pytest.mark.car
 def test_tools_without_connect_use_the_running_profiles_endpoint(tmp_path):
     """`viena up --free-ports` saved its router's port; sub and list find it there."""
     from vienatest import sim_profile_up

@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 from vienatest import free_port, wait_for_line, wait_for_port
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900), pytest.mark.car(seconds=11)]
 
 REPO = Path(__file__).resolve().parents[2]
 TRUTH = "viena/elettra/sim/truth"

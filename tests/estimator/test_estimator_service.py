@@ -93,7 +93,9 @@ def test_the_service_estimates_from_samples_on_zenoh(router, session, procs, sho
     log = proc.stdout.read()
 
     assert not states.errors
-    assert len(states.items) == n_imu                   # one state per IMU sample used
+    # one state per IMU sample used (a fix publishes one too while the IMU stream has gone
+    # quiet, as this test's own stream can on a loaded machine: those repeat the IMU count)
+    assert len({s["counts"]["imu"] for s in states.items if s["counts"]["imu"]}) == n_imu
     last = states.last()
     assert last["mode"] == "navigating" and last["aligned"] and last["position_valid"]
     assert last["origin_source"] == "config" and last["gnss_live"] == ["gnss0"]

@@ -18,10 +18,11 @@ from viena.paths import compose_dir
 from viena.services.gnss.model.fix import FIX
 from viena.services.sim.model.truth import TRUTH
 
-pytestmark = pytest.mark.slow  # the whole simulated car, as processes
+pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=12)]  # the whole simulated car, as processes
 CAR = "foxtest"
 ROOT = f"viena/{CAR}"
 UNITS = ("gnss0", "gnss1")
+HEALTH_OF = ["sim", *(f"gnss/{u}" for u in UNITS), "imu/razor0", "estimator"]
 SAMPLE_KEYS = [f"{ROOT}/sim/truth", *(f"{ROOT}/gnss/{u}/fix" for u in UNITS), f"{ROOT}/imu/razor0/sample",
                f"{ROOT}/estimator/state"]
 DERIVED = [*(f"{ROOT}/foxglove/gnss/{u}/location" for u in UNITS), f"{ROOT}/foxglove/estimator/location",
@@ -119,7 +120,8 @@ def test_locations_are_the_receivers_fixes_to_a_billionth_of_a_degree(car):
 def test_every_message_passes_the_schema_its_channel_advertises(car):
     _, port, _ = car
     with FoxgloveClient(port) as client:
-        client.wait_for_topics(SAMPLE_KEYS)
+        # health comes once a second, each program's first some time after it starts
+        client.wait_for_topics(SAMPLE_KEYS + [f"{ROOT}/{p}/health" for p in HEALTH_OF])
         health = {c["topic"] for c in client.channels.values() if c["topic"].endswith("/health")}
         assert len(health) >= 5                                   # sim, gnss x2, imu, estimator
         channels = list(client.channels.values())

@@ -13,7 +13,7 @@ from viena.paths import compose_dir
 from viena.recording import KeyFilter, Recording
 from viena.services.estimator.state import STATE
 
-pytestmark = pytest.mark.slow  # a live drive and its replay, about a minute
+pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=58)]  # a live drive and its replay, about a minute
 
 SIM_TOML = compose_dir() / "sim.toml"
 CAR = "replaytest"

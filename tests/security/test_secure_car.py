@@ -25,7 +25,7 @@ from viena.services.gnss.model.fix import FIX
 from viena.services.steering.client import SteeringClient
 from viena.services.steering.model.state import STATE as STEERING
 
-pytestmark = pytest.mark.slow  # the whole secured profile
+pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=5)]  # the whole secured profile
 
 VIENA = [sys.executable, "-m", "viena.cli"]
 CAR = "viena/elettra"

@@ -124,6 +124,7 @@ def test_malformed_arm_requests_are_rejected(steering, payload, reason):
 
 
 def test_arming_is_refused_while_the_wheel_is_outside_the_envelope(steering):
+    assert steering.run_until(lambda: not steering.twin.sweeping, 3.0)   # the person let go
     steering.twin.plant.x = 44_000.0                           # ~33 deg, past the 28 deg envelope
     steering.run(0.05)
     r = steering.request("arm", {"arm": True})

@@ -68,6 +68,9 @@ class TwinSettings:
     sweep_speed_qc_s: float = 60_000.0
     sweep_delay_s: float = 0.5
     sweep_hold_s: float = 0.3
+    #: asked to bring the wheel back to the centre, a person holds it there a moment: the
+    #: steering takes a sweep once the wheel has stood still (sweep_settle_s, 0.5 s)
+    centre_hold_s: float = 1.5
     #: how fast the person's hands turn the wheel when they drive (the motor free)
     hands_speed_qc_s: float = 40_000.0
     quickstop_decel_qc_s2: float = 400_000.0
@@ -313,9 +316,19 @@ class EposTwin:
                 self.plant.x = a
                 return
         self.plant.x = self._sweep[-1][3]
+        self._end_sweep()
+
+    def _end_sweep(self) -> None:
         self._sweep = None
         self._swept = True
         log.info("EPOS twin: sweep done, wheel back at the centre")
+
+    def _let_go(self) -> None:
+        """The drive takes the wheel: the person lets go. Holding it at the centre after
+        a sweep, they are done; in the middle of one, they sweep again when next asked."""
+        if self._sweep is not None and self._sweep_clock >= self._sweep[-1][0]:
+            self._end_sweep()
+        self._sweep = None
 
     def _drive_by_hand(self, dt: float) -> None:
         """After the calibration sweep, a person steers while the motor is free."""
@@ -330,7 +343,7 @@ class EposTwin:
         self.plant.x += max(-step, min(step, target - self.plant.x))
 
     def _plan_sweep(self, now: float) -> list[tuple[float, float, float, float]]:
-        """Smooth (cosine) moves: to the left stop, hold, to the right stop, hold, centre."""
+        """Smooth (cosine) moves: to the left stop, hold, to the right stop, hold, centre, hold."""
         s = self.settings
         push = s.lock_qc + 500.0                     # a person pushes against the stop
         points = [self.plant.x, push, -push, 0.0]
@@ -339,6 +352,7 @@ class EposTwin:
             duration = 0.5 * math.pi * abs(b - a) / s.sweep_speed_qc_s
             plan.append((t, t + duration, a, b))
             t += duration + (s.sweep_hold_s if b != 0.0 else 0.0)
+        plan.append((t, t + s.centre_hold_s, 0.0, 0.0))
         return plan
 
     # -- faults ---------------------------------------------------------------------------
@@ -419,7 +433,7 @@ class EposTwin:
         p = self.plant
         if new == ds402.OPERATION_ENABLED and self.state != ds402.QUICK_STOP_ACTIVE:
             p.reset(p.x)
-            self._sweep = None                       # the person lets go of the wheel
+            self._let_go()
         elif new == ds402.QUICK_STOP_ACTIVE:
             dec = self.settings.quickstop_decel_qc_s2
             self._stop_target = p.x + p.v * abs(p.v) / (2.0 * dec)
