@@ -11,7 +11,7 @@ import time
 
 import pytest
 from foxglove_client import FoxgloveClient, decoder
-from vienatest import Processes, free_port, open_session, start_router, wait_for_line
+from vienatest import Processes, free_port, open_session, start_router, wait_for_line, wait_for_subscriber
 
 from viena.foxglove import QUEUE_SAMPLES
 from viena.paths import compose_dir
@@ -142,6 +142,8 @@ def test_the_estop_service_puts_on_the_steering_estop_key(car):
     with open_session(router) as session, FoxgloveClient(port) as client:
         sub = session.declare_subscriber(f"{ROOT}/steering/estop", lambda s: heard.put(
             (s.payload.to_bytes(), str(s.encoding))))
+        with open_session(router) as other:           # the router knows the subscriber: a put reaches it
+            assert wait_for_subscriber(other, f"{ROOT}/steering/estop")
         assert client.wait_for(lambda: "estop" in client.services)
         encoding, answer = client.call("estop", b'{"reason": "test"}')
         payload, zenoh_encoding = heard.get(timeout=10)
