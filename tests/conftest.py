@@ -33,13 +33,12 @@ def pytest_collection_modifyitems(config, items):
         if "procs" in getattr(item, "fixturenames", ()):
             item.add_marker(pytest.mark.slow)
     lane_of = _car_lanes(items)
-    for item in items:
-        if not config.pluginmanager.hasplugin("xdist"):
-            break                                       # -p no:xdist: one process, no groups
-        if item.get_closest_marker("car"):
-            item.add_marker(pytest.mark.xdist_group(f"car-lane-{lane_of[_module(item)]}"))
-        elif _shares_a_module_fixture(item):
-            item.add_marker(pytest.mark.xdist_group(_module(item)))
+    if config.pluginmanager.hasplugin("xdist"):         # not with -p no:xdist: one process
+        for item in items:
+            if item.get_closest_marker("car"):
+                item.add_marker(pytest.mark.xdist_group(f"car-lane-{lane_of[_module(item)]}"))
+            elif _shares_a_module_fixture(item):
+                item.add_marker(pytest.mark.xdist_group(_module(item)))
     first: dict[str, int] = {}
     for item in items:
         first[_module(item)] = min(first.get(_module(item), 2), _start_order(item))
@@ -52,12 +51,12 @@ def pytest_runtest_setup(item):
     """On a parallel worker, tests other than the cars' run at a lower CPU priority (and
     so do the processes they start): the cars run in real time and must keep up; the
     others only take longer."""
-    if os.environ.get("PYTEST_XDIST_WORKER") and not item.get_closest_marker("car") and not _NICE:
-        os.nice(10)
-        _NICE.append(10)
+    if os.environ.get("PYTEST_XDIST_WORKER") and not item.get_closest_marker("car") and os.nice(0) < NICE:
+        os.nice(NICE - os.nice(0))         # once, for good: a process cannot raise it again
 
 
-_NICE: list[int] = []      # whether this worker has lowered its priority (once, for good)
+#: the priority of tests other than the cars' on a parallel worker
+NICE = 10
 
 
 def _module(item) -> str:
@@ -120,4 +119,3 @@ def clean_env(tmp_path, monkeypatch):
     monkeypatch.setenv("VIENA_RUN", str(tmp_path / "run"))
     monkeypatch.delenv("VIENA_ROUTER_PORT", raising=False)
     return dict(os.environ)
-

@@ -328,7 +328,8 @@ class EposTwin:
         a sweep, they are done; in the middle of one, they sweep again when next asked."""
         if self._sweep is not None and self._sweep_clock >= self._sweep[-1][0]:
             self._end_sweep()
-        self._sweep = None
+        else:
+            self._sweep = None
 
     def _drive_by_hand(self, dt: float) -> None:
         """After the calibration sweep, a person steers while the motor is free."""
