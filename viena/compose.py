@@ -21,6 +21,7 @@ import socket
 import subprocess
 import sys
 import time
+import xmlrpc.client
 from pathlib import Path
 
 from viena import programs
@@ -240,6 +241,11 @@ def down(profile: str, timeout: float = 15.0) -> int:
     if pid is None:
         print(f"profile '{profile}' is already down")
         return 0
+    try:
+        programs.stop_all(profile)
+    except (OSError, xmlrpc.client.Error, programs.ProgramError) as exc:
+        print(f"viena: stopping the programs one priority at a time failed ({exc}); "
+              f"supervisord stops them", file=sys.stderr)
     ctl(profile, "shutdown", capture=True)
     end = time.monotonic() + timeout
     while time.monotonic() < end and supervisord_pid(profile):

@@ -33,6 +33,10 @@ SETTLE_TIMEOUT_S = 60.0
 LOG_LINES = 8
 FOLLOW_PERIOD_S = 0.2
 FAILED = ("BACKOFF", "EXITED", "FATAL", "UNKNOWN")
+#: states in which a program still has a process
+ALIVE = ("STARTING", "RUNNING", "STOPPING")
+#: `viena down` stops the programs itself for this long, then leaves the rest to supervisord
+STOP_ALL_TIMEOUT_S = 10.0
 
 
 class ProgramError(Exception):
@@ -196,12 +200,31 @@ def stop(profile: str, conf: Path, name: str) -> int:
     return 0
 
 
-def _stop(supervisor, name: str) -> None:
+def _stop(supervisor, name: str, wait: bool = True) -> None:
     try:
-        supervisor.stopProcess(name, True)
+        supervisor.stopProcess(name, wait)
     except xmlrpc.client.Fault as exc:
         if "NOT_RUNNING" not in exc.faultString:
             raise ProgramError(f"{name}: {exc.faultString}") from None
+
+
+def stop_all(profile: str, timeout: float = STOP_ALL_TIMEOUT_S) -> None:
+    """Stop every program in supervisord's order (the highest priority number first: the
+    pilot, then the services, then the sim, the router last), but the programs of one
+    priority at once. supervisord's own shutdown stops one program at a time and notices
+    each exit only at its next tick of up to a second: eight programs took 8-9 s."""
+    supervisor = rpc(profile)
+    bands: dict[int, list[str]] = {}
+    for info in supervisor.getAllConfigInfo():
+        bands.setdefault(info["process_prio"], []).append(f"{info['group']}:{info['name']}")
+    end = time.monotonic() + timeout
+    for priority in sorted(bands, reverse=True):
+        for name in bands[priority]:
+            _stop(supervisor, name, wait=False)
+        while any(supervisor.getProcessInfo(name)["statename"] in ALIVE for name in bands[priority]):
+            if time.monotonic() > end:
+                return                  # supervisord's shutdown goes on from here, and kills
+            time.sleep(0.05)
 
 
 def logs(profile: str, conf: Path, name: str, follow: bool = False, lines: int = 200) -> int:
