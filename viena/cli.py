@@ -118,7 +118,10 @@ def _add_profile_commands(cmds) -> None:
             action, _running_profile(a), a.program, getattr(a, "follow", False)))
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The whole command line; given the `command` about to run, only that tool's module is
+    imported (the others show in the command list but stay unloaded): `viena status` on
+    the Pi should not wait for the estimator, numpy and Foxglove to load."""
     parser = argparse.ArgumentParser(prog="viena", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     add_version_flag(parser)
@@ -126,6 +129,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_profile_commands(cmds)
 
     for name, (module_name, help_text) in TOOLS.items():
+        if command is not None and name != command:
+            cmds.add_parser(name, help=help_text)          # listed, not loaded
+            continue
         try:
             module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:
@@ -176,7 +182,9 @@ def _bench(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    command = next((a for a in argv if not a.startswith("-")), "")   # "" for `viena --help`
+    args = build_parser(command).parse_args(argv)
     try:
         return args.func(args) or 0
     except compose.ComposeError as exc:

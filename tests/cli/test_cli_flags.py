@@ -4,7 +4,10 @@ name means one thing (--baudrate, --config as TOML settings)."""
 from __future__ import annotations
 
 import argparse
+import importlib
 import io
+import subprocess
+import sys
 from contextlib import redirect_stdout
 
 import pytest
@@ -89,3 +92,20 @@ def test_viena_steer_takes_the_connection_flags_too():
     for flag in (*CONNECTION_FLAGS, "--timeout"):
         assert flag in run.stdout, flag
     assert "--unit" not in run.stdout
+
+
+def test_a_command_loads_its_own_tool_only():
+    """`viena status` on the Pi should not wait for numpy, the estimator and Foxglove to
+    load: only the command's own tool module is imported (the others are listed)."""
+    probe = ("import sys; from viena import cli\n"
+             "try:\n    cli.main(['status', '--version'])\nexcept SystemExit:\n    pass\n"
+             "print(sorted(m for m in sys.modules if m.startswith(('viena.services.estimator', "
+             "'viena.foxglove', 'viena.monitor', 'numpy'))))")
+    loaded = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert loaded.returncode == 0, loaded.stderr
+    assert "0." in loaded.stdout and loaded.stdout.strip().endswith("[]"), loaded.stdout
+    for name, command in (("hz", "viena.hz"), ("monitor", "viena.monitor")):
+        parser = cli.build_parser(name)
+        [action] = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        assert action.choices[name].description == importlib.import_module(command).__doc__
+        assert action.choices["up"].get_default("func") is not None
