@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 
 import zenoh
 
+from viena.common import urlhandler
 from viena.common.errors import PayloadError
 from viena.common.log import Throttled
 from viena.common.payload import parse_payload
@@ -68,6 +69,7 @@ class SteeringService(Service):
         if s.drive.interface == "slcan" and s.drive.channel.startswith("socket://"):
             options.setdefault("sleep_after_open", 0)     # no adapter to reset on a socket
             options.setdefault("timeout", 0.01)           # idle polling: 100/s, not 1000/s
+            urlhandler.use()                              # whole reads, not a byte at a time
         drive = EposDrive(replace(s.drive, bus_options=options))
         self._state_pub = self.publisher(self.keys.key("steering", "state"), STATE)
         self.controller = SteeringController(drive, Envelope(s.envelope), s.calibration, s.controller,

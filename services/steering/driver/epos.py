@@ -82,7 +82,8 @@ class DriveSettings:
     sdo_timeout_s: float = setting(0.3, "longest wait for an SDO answer")
     #: extra python-can arguments, e.g. {"sleep_after_open": 0} for an slcan socket
     bus_options: dict[str, Any] = setting({}, "extra python-can arguments; for slcan on socket:// "
-                                              "the service adds sleep_after_open = 0, timeout = 0.01")
+                                              "the service adds sleep_after_open = 0, timeout = 0.01 and reads the "
+                                              "socket in whole chunks (viena.common.urlhandler)")
     eds: str = setting(str(EDS_PATH), "the drive's object dictionary",
                        shown="the shipped services/steering/maxon-70_10.eds")
 
