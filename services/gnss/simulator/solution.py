@@ -6,6 +6,7 @@ at the antenna's lever arm; the drive replay (replay.py) reads the car's 2016 re
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -86,6 +87,14 @@ def _enu_axes(lat_deg: float, lon_deg: float) -> np.ndarray:
 
 
 def _sigma_ecef(sigma_enu, lat_deg: float, lon_deg: float) -> tuple:
+    """Per-axis ECEF sigmas of per-axis ENU ones. Remembered: a receiver's sigmas and the
+    origin stay the same from epoch to epoch, and the matrix products cost more than the rest
+    of an epoch's arithmetic."""
+    return _sigma_ecef_of(tuple(float(v) for v in sigma_enu), float(lat_deg), float(lon_deg))
+
+
+@functools.lru_cache(maxsize=64)
+def _sigma_ecef_of(sigma_enu: tuple, lat_deg: float, lon_deg: float) -> tuple:
     r = _enu_axes(lat_deg, lon_deg)
     cov = r @ np.diag(np.square(sigma_enu)) @ r.T
     return tuple(float(v) for v in np.sqrt(np.diag(cov)))
@@ -137,14 +146,15 @@ class TruthSolver:
         # "subtract from the time"), so it is the velocity of that earlier instant
         vel_then = vel_enu + truth.accel_enu_mps2 * (dt - DOPPLER_LATENCY_S)
         vel = _rotate_enu_to_ecef(vel_then + err_vel, lat0, lon0)
+        sigma_enu = self.errors.sigma_enu
         sol = Solution(
             gps_ms, SolutionStatus.SOL_COMPUTED, self.pos_type, tuple(map(float, ecef)),
-            _sigma_ecef(self.errors.sigma_enu, lat0, lon0), SolutionStatus.SOL_COMPUTED,
+            _sigma_ecef(sigma_enu, lat0, lon0), SolutionStatus.SOL_COMPUTED,
             PositionType.DOPPLER_VELOCITY, tuple(map(float, vel)),
             _sigma_ecef(self.errors.velocity_sigma, lat0, lon0),
             sats_tracked=sky.sats_tracked, sats_used=sky.sats_used,
             undulation_m=self.undulation_m,
-            sigma_enu_m=tuple(float(v) for v in self.errors.sigma_enu))
+            sigma_enu_m=tuple(float(v) for v in sigma_enu))
         self._last_fix = sol
         return sol
 

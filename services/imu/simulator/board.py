@@ -40,6 +40,14 @@ def _seed_mag():
 _SEED_MAG_OFFSET, _SEED_MAG_C = _seed_mag()
 
 
+def _rint(x: float) -> float:
+    """np.rint of a Python float: to the nearest integer, halves to even, a zero keeping
+    the sign of x (round() alone makes -0.3 into 0, not -0.0)."""
+    if not math.isfinite(x):
+        return x
+    return math.copysign(float(round(x)), x)
+
+
 class Measurement(NamedTuple):
     accel_lsb: tuple        # what the ADXL345 registers hold
     accel_g: tuple          # after the firmware's EEPROM calibration
@@ -71,25 +79,41 @@ class RazorBoard:
     def __post_init__(self):
         for name in ("accel_gain_lsb_per_g", "accel_offset_lsb", "eeprom_gain_lsb_per_g",
                      "eeprom_offset_lsb", "accel_noise_lsb", "gyro_bias_dps", "gyro_noise_dps",
-                     "mag_offset_counts", "mag_c", "mag_noise_counts"):
+                     "mag_offset_counts", "mag_c", "mag_noise_counts", "field_enu_nT"):
             object.__setattr__(self, "_" + name, np.array(getattr(self, name), float))
         object.__setattr__(self, "_to_board", Mount(tuple(self.mount_zyx_deg)).matrix.T)
+        # the per-axis figures, axis by axis, as Python floats (for measure)
+        object.__setattr__(self, "_accel_axes", tuple(zip(*(
+            getattr(self, "_" + name).tolist() for name in (
+                "accel_gain_lsb_per_g", "accel_offset_lsb", "accel_noise_lsb",
+                "eeprom_offset_lsb", "eeprom_gain_lsb_per_g")))))
+        object.__setattr__(self, "_gyro_axes", tuple(zip(
+            self._gyro_bias_dps.tolist(), self._gyro_noise_dps.tolist())))
+        object.__setattr__(self, "_mag_axes", tuple(zip(
+            self._mag_offset_counts.tolist(), self._mag_noise_counts.tolist())))
 
     def measure(self, truth, rng: np.random.Generator) -> Measurement:
+        """One sample of the three sensors (the noise drawn accel, gyro, mag, 3 each).
+
+        The matrix products are numpy's; the per-axis arithmetic after them is written in
+        Python floats, the same operations in the same order (the same bits), because on
+        3-vectors numpy's per-call cost is several times the arithmetic's, every sample."""
         to_board = self._to_board
-        f_g = to_board @ np.asarray(truth.specific_force_body_mps2, float) / STANDARD_GRAVITY
-        lsb = np.round(self._accel_gain_lsb_per_g * f_g + self._accel_offset_lsb
-                       + self._accel_noise_lsb * rng.standard_normal(3))
-        lsb = np.clip(lsb, -4096, 4095)                # 13 bits at +-16 g, full resolution
-        accel_g = (lsb - self._eeprom_offset_lsb) / self._eeprom_gain_lsb_per_g
-        w = (np.degrees(to_board @ np.asarray(truth.gyro_body_radps, float)) + self._gyro_bias_dps
-             + self._gyro_noise_dps * rng.standard_normal(3))
-        w = np.round(w * GYRO_LSB_PER_DPS) / GYRO_LSB_PER_DPS
-        h = to_board @ np.asarray(truth.mag_body_T(self.field_enu_nT), float) / self.tesla_per_count
-        m = np.round(self._mag_c @ h + self._mag_offset_counts
-                     + self._mag_noise_counts * rng.standard_normal(3))
-        m = np.clip(m, -2048, 2047)
+        f_g = (to_board @ np.asarray(truth.specific_force_body_mps2, float) / STANDARD_GRAVITY).tolist()
+        noise = rng.standard_normal(3).tolist()
+        lsb = [min(max(_rint(gain * f + offset + sigma * z), -4096.0), 4095.0)  # 13 bits at +-16 g
+               for (gain, offset, sigma, _, _), f, z in zip(self._accel_axes, f_g, noise)]
+        accel_g = [(v - eeprom_offset) / eeprom_gain
+                   for (_, _, _, eeprom_offset, eeprom_gain), v in zip(self._accel_axes, lsb)]
+        w_body = (to_board @ np.asarray(truth.gyro_body_radps, float)).tolist()
+        noise = rng.standard_normal(3).tolist()
+        w = [_rint((math.degrees(v) + bias + sigma * z) * GYRO_LSB_PER_DPS) / GYRO_LSB_PER_DPS
+             for (bias, sigma), v, z in zip(self._gyro_axes, w_body, noise)]
+        h = to_board @ np.asarray(truth.mag_body_T(self._field_enu_nT), float) / self.tesla_per_count
+        soft = (self._mag_c @ h).tolist()
+        noise = rng.standard_normal(3).tolist()
+        m = [min(max(_rint(v + offset + sigma * z), -2048.0), 2047.0)
+             for (offset, sigma), v, z in zip(self._mag_axes, soft, noise)]
         yaw, pitch, roll = euler_from_quat(truth.quat)
-        return Measurement(tuple(lsb.tolist()), tuple(accel_g.tolist()), tuple(w.tolist()),
-                           tuple(m.tolist()),
+        return Measurement(tuple(lsb), tuple(accel_g), tuple(w), tuple(m),
                            (math.degrees(yaw), math.degrees(pitch), math.degrees(roll)))

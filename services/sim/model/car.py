@@ -137,17 +137,21 @@ class SimCar:
         return math.atan(curvature * p.wheelbase_m)
 
     def _make_truth(self, along_mps2: float, yaw_rate: float, lateral_mps2: float) -> Truth:
+        # v fwd and a_along fwd + a_lat left, fwd = (-s, c, 0), left = (-c, -s, 0), written
+        # out in floats: the same products and sums numpy would do, without its overhead
         c, s = math.cos(self._yaw), math.sin(self._yaw)
-        fwd = np.array([-s, c, 0.0])
-        left = np.array([-c, -s, 0.0])
+        v = self._v
+        vel = [v * -s, v * c, v * 0.0]
+        accel = [along_mps2 * -s + lateral_mps2 * -c, along_mps2 * c + lateral_mps2 * -s,
+                 along_mps2 * 0.0 + lateral_mps2 * 0.0]
         self._seq += 1
         return Truth(
             t_ns=self._t0_ns + int(round(self._t * 1e9)),
             t_s=self._t,
             origin=self.origin,
             enu_m=np.array([self._x, self._y, 0.0]),
-            vel_enu_mps=self._v * fwd,
-            accel_enu_mps2=along_mps2 * fwd + lateral_mps2 * left,
+            vel_enu_mps=np.array(vel),
+            accel_enu_mps2=np.array(accel),
             quat=quat_from_euler(self._yaw, 0.0, 0.0),
             gyro_body_radps=np.array([0.0, 0.0, yaw_rate]),
             speed_mps=self._v,

@@ -1,6 +1,7 @@
 """The loop the simulated car drives: a closed polyline in local ENU metres."""
 from __future__ import annotations
 
+import bisect
 import math
 
 import numpy as np
@@ -16,6 +17,10 @@ class Route:
         self._s = np.concatenate([[0.0], np.cumsum(self._seglen)])
         self.length_m = float(self._s[-1])
         self._last = 0
+        # the same numbers as Python floats: pure pursuit reads a few of them every step,
+        # and indexing numpy arrays one element at a time costs more than the arithmetic
+        self._xs, self._ys = self.points[:, 0].tolist(), self.points[:, 1].tolist()
+        self._s_list, self._seglen_list = self._s.tolist(), self._seglen.tolist()
 
     def start_pose(self) -> tuple[float, float, float]:
         """First point and the yaw (ENU, CCW, 0 = North) along the first segment."""
@@ -23,21 +28,20 @@ class Route:
         return float(x0), float(y0), math.atan2(-(x1 - x0), y1 - y0)
 
     def point_at(self, s: float) -> tuple[float, float]:
-        s = s % self.length_m
-        i = int(np.searchsorted(self._s, s, side="right") - 1)
-        i = min(i, len(self.points) - 1)
-        frac = (s - self._s[i]) / self._seglen[i]
-        a = self.points[i]
-        b = self.points[(i + 1) % len(self.points)]
-        return float(a[0] + frac * (b[0] - a[0])), float(a[1] + frac * (b[1] - a[1]))
+        s = float(s) % self.length_m
+        n = len(self._xs)
+        i = min(bisect.bisect_right(self._s_list, s) - 1, n - 1)
+        frac = (s - self._s_list[i]) / self._seglen_list[i]
+        xs, ys, j = self._xs, self._ys, (i + 1) % n
+        return xs[i] + frac * (xs[j] - xs[i]), ys[i] + frac * (ys[j] - ys[i])
 
     def lookahead(self, x: float, y: float, distance_m: float) -> tuple[float, float]:
         """The route point `distance_m` beyond the closest point near the last one found."""
-        n = len(self.points)
+        xs, ys, n = self._xs, self._ys, len(self._xs)
         window = [(self._last + k) % n for k in range(-2, 12)]
-        d = [(self.points[i, 0] - x) ** 2 + (self.points[i, 1] - y) ** 2 for i in window]
-        self._last = window[int(np.argmin(d))]
-        return self.point_at(self._s[self._last] + distance_m)
+        d = [(xs[i] - x) ** 2 + (ys[i] - y) ** 2 for i in window]
+        self._last = window[d.index(min(d))]          # the first of equals, as np.argmin
+        return self.point_at(self._s_list[self._last] + distance_m)
 
 
 def oval(straight_m: float = 40.0, radius_m: float = 12.0, step_m: float = 1.0) -> Route:
