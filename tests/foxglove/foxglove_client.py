@@ -47,11 +47,13 @@ class FoxgloveClient:
         sock.settimeout(10)
         sock.connect((host, port))
         sock.settimeout(None)
-        # max_queue=1: frames stay in the socket until read, as in a stalled browser tab
+        # max_queue=1: frames stay in the socket until read, as in a stalled browser tab;
+        # close_timeout=1: a client going away does not wait 10 s for the closing handshake
+        # behind a stalled client's backlog (the server then sees the connection drop)
         self._stack = ExitStack()
         self.ws = self._stack.enter_context(connect(f"ws://{host}:{port}", sock=sock, subprotocols=SUBPROTOCOLS,
                                                     max_size=None, max_queue=1, compression=None,
-                                                    ping_interval=None))
+                                                    ping_interval=None, close_timeout=1))
         self.subprotocol = self.ws.subprotocol
         self.server_info: dict = {}
         self.channels: dict[int, dict] = {}
