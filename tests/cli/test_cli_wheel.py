@@ -6,9 +6,12 @@ profile up, `viena router` starts from its packaged config, the GNSS twin replay
 a recording made there is read and replayed.
 
 It builds the wheel (`pip wheel`) and installs it into a fresh virtualenv with pip's
-ordinary client (the package index and pip's cache: a minute the first time)."""
+ordinary client (the package index and pip's cache: a minute the first time), once for all
+the workers of a parallel run: the tests without a car build it on another worker while the
+car lane runs, and the one that brings the car up finds it there."""
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import re
@@ -20,7 +23,7 @@ from pathlib import Path
 import pytest
 from vienatest import free_port, wait_for_line, wait_for_port
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(900), pytest.mark.car(seconds=11)]
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 REPO = Path(__file__).resolve().parents[2]
 TRUTH = "viena/elettra/sim/truth"
@@ -28,20 +31,27 @@ TRUTH = "viena/elettra/sim/truth"
 TEST_ONLY = ("pytest", "hypothesis", "scipy", "ahrs", "jedi")
 
 
+def outside_the_checkout(venv: Path) -> dict:
+    """The environment of a machine with viena installed in `venv` and no checkout."""
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("PYTHONPATH", "VIRTUAL_ENV", "VIENA_COMPOSE", "VIENA_ROUTER_PORT",
+                        "VIENA_SETTINGS", "VIENA_PYTHON", "VIENA_CONNECT")}
+    env["PATH"] = f"{venv / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}"
+    return env
+
+
 class Installed:
     """A virtualenv holding viena from its wheel, and a directory outside the repository
     to run it in."""
 
-    def __init__(self, root: Path):
+    def __init__(self, root: Path, mine: Path):
         self.root = root
         self.venv = root / "venv"
-        self.work = root / "elsewhere"
+        self.work = mine / "elsewhere"         # a worker's own: tests on two workers at once
         self.work.mkdir()
-        self.env = {k: v for k, v in os.environ.items()
-                    if k not in ("PYTHONPATH", "VIRTUAL_ENV", "VIENA_COMPOSE", "VIENA_ROUTER_PORT",
-                                 "VIENA_SETTINGS", "VIENA_PYTHON", "VIENA_CONNECT")}
-        self.env["PATH"] = f"{self.venv / 'bin'}{os.pathsep}{os.environ.get('PATH', '')}"
-        self.env["VIENA_RUN"] = str(root / "run")
+        self.run_dir = mine / "run"
+        self.env = outside_the_checkout(self.venv)
+        self.env["VIENA_RUN"] = str(self.run_dir)
         self.python = str(self.venv / "bin" / "python")
 
     def run(self, *args, timeout: float = 120) -> subprocess.CompletedProcess:
@@ -58,16 +68,28 @@ class Installed:
 
 @pytest.fixture(scope="module")
 def installed(tmp_path_factory):
-    root = tmp_path_factory.mktemp("wheel")
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent                 # the run's, above each worker's own
+    root = shared / "wheel"
+    with open(shared / "wheel.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)       # one builds, the others wait and use it
+        if not (root / "installed").exists():
+            install(root)
+            (root / "installed").touch()
+    return Installed(root, tmp_path_factory.mktemp("wheel-user"))
+
+
+def install(root: Path) -> None:
     built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", root / "dist", REPO],
                            capture_output=True, text=True, timeout=600)
     assert built.returncode == 0, built.stderr
     [wheel] = (root / "dist").glob("viena-*.whl")
-    at = Installed(root)
-    subprocess.run([sys.executable, "-m", "venv", at.venv], check=True, timeout=300)
-    pip = at.run(at.python, "-m", "pip", "install", "-q", wheel, timeout=900)
+    python = root / "venv" / "bin" / "python"
+    subprocess.run([sys.executable, "-m", "venv", root / "venv"], check=True, timeout=300)
+    pip = subprocess.run([python, "-m", "pip", "install", "-q", wheel], cwd=root, capture_output=True,
+                         text=True, timeout=900, env=outside_the_checkout(root / "venv"))
     assert pip.returncode == 0, pip.stderr
-    return at
 
 
 def test_it_is_the_wheel_and_only_what_the_car_runs(installed):
@@ -115,12 +137,13 @@ def test_gnss_twin_replays_the_shipped_drive(installed):
     assert "Traceback" not in twin.stderr.read()
 
 
+@pytest.mark.car(seconds=30)
 def test_sim_profile_up_and_every_tool_on_it(installed):
     up = installed.viena("up", "-d", "--free-ports", timeout=180)
     try:
         assert up.returncode == 0, up.stderr
         assert "every program of sim is up" in up.stderr
-        env = json.loads((installed.root / "run" / "env.json").read_text())
+        env = json.loads((installed.run_dir / "env.json").read_text())
         assert env["VIENA_PYTHON"] == installed.python and Path(env["VIENA_SETTINGS"]).is_relative_to(installed.venv)
         wait_for_port(int(env["VIENA_ROUTER_PORT"]), timeout=30)
 
