@@ -5,8 +5,14 @@ from __future__ import annotations
 import os
 
 import pytest
+from hypothesis import settings
 from priority import WorkerPriority, forward_interrupts
 from vienatest import Processes, open_session, start_router
+
+# Property tests draw the same examples on every run, as every other test is the same on
+# every run; a test's own @settings still say how many.
+settings.register_profile("deterministic", derandomize=True)
+settings.load_profile("deterministic")
 
 #: how many whole cars may run at once on parallel workers (scripts/test): the first lane
 #: takes the `car(realtime=True)` tests, the others (if any) the rest of the `car` tests
