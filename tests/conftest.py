@@ -19,8 +19,8 @@ settings.load_profile("deterministic")
 CAR_LANES = int(os.environ.get("VIENA_TEST_CARS", "1"))
 #: what a `car` test is taken to last when its mark does not say (for sharing out the lanes)
 CAR_SECONDS = 15.0
-#: CPU priorities on a parallel worker (nice): the first lane's car, then the other lanes'
-#: cars, then everything else
+#: CPU priorities on a parallel worker (nice): the first lane's car (and the tests marked
+#: `realtime`, which are not cars), then the other lanes' cars, then everything else
 NICE_OF = {"first lane": 0, "other lanes": 3, "other": 5}
 LANE = pytest.StashKey[int]()
 
@@ -68,7 +68,7 @@ def pytest_collection_modifyitems(config, items):
 
     def start(item) -> tuple:
         if item.get_closest_marker("car"):
-            return (0, lane_of[_module(item)], not _realtime(item))
+            return (0, lane_of[_module(item)], not _realtime_car(item))
         if item.get_closest_marker("realtime"):
             return (1, 0, False)
         return (1 + tier[_module(item)], 0, False)
@@ -107,7 +107,7 @@ def _module(item) -> str:
     return item.nodeid.split("::")[0]
 
 
-def _realtime(item) -> bool:
+def _realtime_car(item) -> bool:
     mark = item.get_closest_marker("car")
     return bool(mark and mark.kwargs.get("realtime"))
 
@@ -119,7 +119,7 @@ def _car_lanes(items) -> dict[str, int]:
     lane_of = {}
     for item in items:
         mark = item.get_closest_marker("car")
-        if _realtime(item):
+        if _realtime_car(item):
             lane_of[_module(item)] = 0
         elif mark:
             seconds[_module(item)] = seconds.get(_module(item), 0.0) + mark.kwargs.get("seconds", CAR_SECONDS)
