@@ -75,27 +75,26 @@ def forward_interrupts() -> None:
 
 
 def _children() -> list[int]:
-    found = []
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            if int(stat.read_text().rsplit(")", 1)[1].split()[1]) == os.getpid():
-                found.append(int(stat.parent.name))
-        except (OSError, ValueError, IndexError):
-            continue
-    return found
+    return _pids_where(lambda pid, entry: int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+                       == os.getpid())
 
 
 def _sessions_of(tag: bytes) -> list[int]:
-    """Session leaders other than this process whose environment carries `tag`."""
+    """Session leaders whose environment carries `tag`."""
+    return _pids_where(lambda pid, entry: os.getsid(pid) == pid
+                       and tag in (entry / "environ").read_bytes().split(b"\0"))
+
+
+def _pids_where(test) -> list[int]:
+    """The other processes for which test(pid, /proc/pid) holds."""
     found = []
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit() or int(entry.name) == os.getpid():
             continue
         try:
-            pid = int(entry.name)
-            if os.getsid(pid) == pid and tag in (entry / "environ").read_bytes().split(b"\0"):
-                found.append(pid)
-        except OSError:                      # gone, or not ours to read
+            if test(int(entry.name), entry):
+                found.append(int(entry.name))
+        except (OSError, ValueError, IndexError):    # gone, or not ours to read
             continue
     return found
 

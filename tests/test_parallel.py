@@ -41,9 +41,10 @@ def test_a_group_runs_on_one_worker(tmp_path):
 
 
 PRIORITY_PROBE = '''
-import os, subprocess, sys, time
+import os, subprocess, sys
 sys.path.insert(0, sys.argv[1])
 from priority import WorkerPriority
+from vienatest import wait_until
 
 def autogroup_nice(pid):
     return int(open(f"/proc/{pid}/autogroup").read().split()[-1])
@@ -53,9 +54,7 @@ worker.lower_to(5)
 env = dict(os.environ, PYTEST_XDIST_WORKER="probe")
 car = subprocess.Popen(["sleep", "30"], env=env, start_new_session=True)   # as supervisord does
 try:
-    end = time.monotonic() + 5
-    while autogroup_nice(car.pid) != 5 and time.monotonic() < end:
-        time.sleep(0.05)
+    wait_until(lambda: autogroup_nice(car.pid) == 5, 5.0)
     print(os.getsid(0) == os.getpid(), os.nice(0), autogroup_nice(os.getpid()), autogroup_nice(car.pid))
 finally:
     car.kill()

@@ -221,7 +221,8 @@ def stop_all(profile: str, timeout: float = STOP_ALL_TIMEOUT_S) -> None:
     for priority in sorted(bands, reverse=True):
         for name in bands[priority]:
             _stop(supervisor, name, wait=False)
-        while any(supervisor.getProcessInfo(name)["statename"] in ALIVE for name in bands[priority]):
+        while any(f"{info['group']}:{info['name']}" in bands[priority] and info["statename"] in ALIVE
+                  for info in supervisor.getAllProcessInfo()):            # one call a poll
             if time.monotonic() > end:
                 return                  # supervisord's shutdown goes on from here, and kills
             time.sleep(0.05)

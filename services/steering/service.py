@@ -23,11 +23,10 @@ map) on steering/estop, by put or query.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import zenoh
 
-from viena.common import urlhandler
 from viena.common.errors import PayloadError
 from viena.common.log import Throttled
 from viena.common.payload import parse_payload
@@ -65,12 +64,7 @@ class SteeringService(Service):
         s = self.settings
         if self.log.getEffectiveLevel() > logging.DEBUG:
             logging.getLogger("canopen").setLevel(logging.WARNING)   # one line per PDO otherwise
-        options = dict(s.drive.bus_options)
-        if s.drive.interface == "slcan" and s.drive.channel.startswith("socket://"):
-            options.setdefault("sleep_after_open", 0)     # no adapter to reset on a socket
-            options.setdefault("timeout", 0.01)           # idle polling: 100/s, not 1000/s
-            urlhandler.use()                              # whole reads, not a byte at a time
-        drive = EposDrive(replace(s.drive, bus_options=options))
+        drive = EposDrive(s.drive)
         self._state_pub = self.publisher(self.keys.key("steering", "state"), STATE)
         self.controller = SteeringController(drive, Envelope(s.envelope), s.calibration, s.controller,
                                              on_state=self._publish_state)

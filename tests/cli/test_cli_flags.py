@@ -20,8 +20,8 @@ CONNECTION_FLAGS = ("--connect", "--car", "--config", "--identity", "--keys", "-
 CLIENT_TOOLS = ("sub", "record", "replay", "monitor", "list", "hz")
 
 
-def subcommands() -> dict[str, argparse.ArgumentParser]:
-    parser = cli.build_parser()
+def subcommands(command: str | None = None) -> dict[str, argparse.ArgumentParser]:
+    parser = cli.build_parser(command)
     [action] = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
     return dict(action.choices)
 
@@ -105,7 +105,6 @@ def test_a_command_loads_its_own_tool_only():
     assert loaded.returncode == 0, loaded.stderr
     assert "0." in loaded.stdout and loaded.stdout.strip().endswith("[]"), loaded.stdout
     for name, command in (("hz", "viena.hz"), ("monitor", "viena.monitor")):
-        parser = cli.build_parser(name)
-        [action] = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-        assert action.choices[name].description == importlib.import_module(command).__doc__
-        assert action.choices["up"].get_default("func") is not None
+        commands = subcommands(name)
+        assert commands[name].description == importlib.import_module(command).__doc__
+        assert commands["up"].get_default("func") is not None

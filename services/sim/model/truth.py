@@ -54,7 +54,7 @@ class Truth:
     def specific_force_body_mps2(self) -> np.ndarray:
         """What an ideal accelerometer feels: a - g, in body axes (at rest: +g on z)."""
         ax, ay, az = np.asarray(self.accel_enu_mps2, float).tolist()
-        f_enu = np.array([ax + 0.0, ay + 0.0, az + self.gravity_mps2])
+        f_enu = np.array([ax + 0.0, ay + 0.0, az + self.gravity_mps2])   # + 0.0 as numpy's sum: -0.0 -> 0.0
         return self.rot.T @ f_enu
 
     def enu_of(self, lever_arm_body_m) -> np.ndarray:

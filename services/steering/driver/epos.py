@@ -37,6 +37,7 @@ import can
 import canopen
 from canopen.profiles.p402 import BaseNode402
 
+from viena.common import urlhandler
 from viena.common.settings import setting
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import Emcy
@@ -82,7 +83,7 @@ class DriveSettings:
     sdo_timeout_s: float = setting(0.3, "longest wait for an SDO answer")
     #: extra python-can arguments, e.g. {"sleep_after_open": 0} for an slcan socket
     bus_options: dict[str, Any] = setting({}, "extra python-can arguments; for slcan on socket:// "
-                                              "the service adds sleep_after_open = 0, timeout = 0.01 and reads the "
+                                              "the driver adds sleep_after_open = 0, timeout = 0.01 and reads the "
                                               "socket in whole chunks (viena.common.urlhandler)")
     eds: str = setting(str(EDS_PATH), "the drive's object dictionary",
                        shown="the shipped services/steering/maxon-70_10.eds")
@@ -149,7 +150,7 @@ class EposDrive:
         net = self.network = canopen.Network(self._bus)
         net.NOTIFIER_CYCLE = 0.1      # how long closing waits for the receive thread
         if self._bus is None:
-            net.connect(interface=s.interface, channel=s.channel, bitrate=s.bitrate, **s.bus_options)
+            net.connect(interface=s.interface, channel=s.channel, bitrate=s.bitrate, **_bus_options(s))
         else:
             net.connect()
         _notifier(net).add_listener(_ReceiveFailure(net))
@@ -397,6 +398,16 @@ class _ReceiveFailure(can.Listener):
     def on_error(self, exc: Exception) -> None:
         log.warning("CAN receive stopped: %s", exc)
         _notifier(self._network).stop(timeout=0)
+
+
+def _bus_options(s: DriveSettings) -> dict[str, Any]:
+    """python-can's arguments, with what slcan on a TCP socket (the simulated drive) needs."""
+    options = dict(s.bus_options)
+    if s.interface == "slcan" and s.channel.startswith("socket://"):
+        options.setdefault("sleep_after_open", 0)     # no adapter to reset on a socket
+        options.setdefault("timeout", 0.01)           # idle polling: 100/s, not 1000/s
+        urlhandler.use()                              # whole reads, not a byte at a time
+    return options
 
 
 def _notifier(network: canopen.Network) -> can.Notifier:
