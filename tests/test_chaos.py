@@ -39,7 +39,7 @@ from vienatest import VIENA, Processes, open_session, sim_profile_up, wait_for_l
 from viena.recording import Recording
 from viena.services.steering.client import ConflictingReplies, SteeringClient
 
-pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=55)]
+pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=55, realtime=True)]
 
 SEED = 15
 PROGRAMS = ["router", "sim", "gnss0", "gnss1", "razor0", "steering", "estimator"]

@@ -33,6 +33,7 @@ def test_the_router_limits_exactly_the_keys_services_take_commands_on_as_puts():
 
 
 @pytest.mark.slow
+@pytest.mark.realtime                   # counts what passes a rate limit in real time
 def test_a_setpoint_flood_from_one_client_is_cut_to_the_limit_and_another_client_still_passes(router, session):
     heard: dict[bytes, int] = {}
     lock = threading.Lock()

@@ -15,7 +15,7 @@ from viena.paths import compose_dir
 from viena.recording import KeyFilter, Recording
 from viena.services.estimator.state import STATE
 
-pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=45)]  # a live drive and its replay at 2x
+pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=45, realtime=True)]  # a live drive and its replay at 2x
 
 SIM_TOML = compose_dir() / "sim.toml"
 CAR = "replaytest"

@@ -18,7 +18,7 @@ from vienatest import open_session, sim_profile_up, wait_for_line, wait_for_quer
 from benchmarks.faults import supervisor
 from benchmarks.pilot import LiveLoop, rms
 
-pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=60)]  # the whole sim profile, minutes
+pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=60, realtime=True)]  # the whole sim profile, minutes
 
 #: the sim's receivers (compose/sim.toml [sim.gnss*] cep_m): RTK grade, and the car's own
 RTK_GRADE, SINGLE_POINT = {"VIENA_SIM_GNSS_CEP_M": "0.05"}, {}

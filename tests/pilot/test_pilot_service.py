@@ -25,7 +25,7 @@ from viena.services.sim.model.truth import IST_ORIGIN
 from viena.services.steering.model.state import STATE as STEERING_STATE
 from viena.services.steering.simulator import TwinSettings, start_twin_on_hub
 
-pytestmark = pytest.mark.slow  # processes
+pytestmark = [pytest.mark.slow, pytest.mark.realtime]  # processes: a pilot and a steering, with watchdogs
 
 CAR = "viena/elettra"
 FRAME = LocalFrame(*IST_ORIGIN)
