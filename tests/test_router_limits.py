@@ -10,6 +10,7 @@ import time
 import json5
 import pytest
 import zenoh
+from vienatest import wait_until
 
 from viena.common.access import ROLES
 from viena.common.config import load_zenoh_config
@@ -43,22 +44,35 @@ def test_a_setpoint_flood_from_one_client_is_cut_to_the_limit_and_another_client
             tag = sample.payload.to_bytes()
             heard[tag] = heard.get(tag, 0) + 1
 
+    def count(tag: bytes) -> int:
+        with lock:
+            return heard.get(tag, 0)
+
     sub = session.declare_subscriber(KEY, on_sample)
     with zenoh.open(load_zenoh_config(mode="client", connect=[router])) as flooder, \
             zenoh.open(load_zenoh_config(mode="client", connect=[router])) as owner:
-        time.sleep(0.5)                                     # routes in place (no readiness to wait on)
         flood_pub, owner_pub = flooder.declare_publisher(KEY), owner.declare_publisher(KEY)
+        # each client's route in place: a put before it is lost, and would count as cut
+        for pub, hello in ((flood_pub, b"hello flood"), (owner_pub, b"hello owner")):
+            assert wait_until(lambda p=pub, h=hello: p.put(h) or count(h) > 0, 20, period=0.05), hello
         t0 = time.monotonic()
-        sent = 0
+        sent = owned = 0
         while sent < 5000:
             flood_pub.put(b"flood")
             sent += 1
-            if sent % 250 == 0:                             # the owner: one setpoint per 250 flood puts
+            if sent % 250 == 0:
+                # the owner: one setpoint per 250 flood puts, each once the one before it has
+                # come through and 20 ms later, so never faster than 50 Hz at the router
+                # however late this thread runs (the wait gives up on a setpoint the router cut)
+                wait_until(lambda n=owned: count(b"owner") >= n, 5)
+                time.sleep(0.02)
                 owner_pub.put(b"owner")
-                time.sleep(0.02)                            # never faster than 50 Hz
+                owned += 1
         flooding_s = time.monotonic() - t0
-        time.sleep(0.5)
+        wait_until(lambda: count(b"owner") >= owned, 5)
+        time.sleep(0.2)                                     # the last flood puts in flight
     sub.undeclare()
-    assert heard.get(b"owner") == 20                        # the owner's every setpoint, at 50 Hz at most
+    assert owned == 20
+    assert heard.get(b"owner") == 20, heard                 # the owner's every setpoint
     assert heard.get(b"flood", 0) <= LIMIT_HZ * flooding_s + 2
     assert heard.get(b"flood", 0) < sent / 2, (heard, flooding_s)

@@ -18,9 +18,7 @@ from viena.services.sim.devices import start_devices
 from viena.services.sim.model.car import CarParams, SimCar
 from viena.services.sim.model.truth import IST_ORIGIN, TRUTH, truth_sample
 from viena.services.steering.model.state import STATE as STEERING_STATE
-
-#: how long the simulated person takes to notice the steering asks for a sweep
-PERSON_NOTICES_S = 2.0
+from viena.services.steering.simulator.person import PersonAtTheWheel
 
 
 @dataclass(frozen=True)
@@ -47,9 +45,9 @@ class SimService(Service):
         self.car = SimCar(s.car, origin=s.origin)
         self._truth_pub = self.publisher(self.keys.truth, TRUTH)
         self.devices = start_devices(self, self.car)
-        self._steering_wheels = [d.twin for d in self.devices if hasattr(getattr(d, "twin", None), "ask_for_sweep")]
-        if self._steering_wheels:
-            self._calibrating_since: float | None = None
+        wheels = [d.twin for d in self.devices if hasattr(getattr(d, "twin", None), "ask_for_sweep")]
+        if wheels:
+            self._person = PersonAtTheWheel(wheels)
             self.declare_subscriber(self.keys.key("steering", "state"), self._on_steering_state)
         self._thread = threading.Thread(target=self._loop, name="sim-car", daemon=True)
         self._thread.start()
@@ -62,23 +60,13 @@ class SimService(Service):
             device.stop()
 
     def _on_steering_state(self, sample) -> None:
-        """The simulated person reads the steering's state as a person reads the monitor:
-        asked to sweep (a calibration restart), they turn the wheel lock to lock again."""
+        """The simulated person reads the steering's state as a person reads the monitor."""
         try:
             state = STEERING_STATE.decode(sample.payload.to_bytes())
         except SampleError:
             return
-        if state["phase"] != "calibrating" or state["armed"]:
-            self._calibrating_since = None
-            return
-        now = time.monotonic()
-        if self._calibrating_since is None:
-            self._calibrating_since = now
-        elif now - self._calibrating_since > PERSON_NOTICES_S:
-            for wheel in self._steering_wheels:
-                if wheel.ask_for_sweep():
-                    self.log.info("the person at the wheel sweeps it lock to lock, as the steering asks")
-            self._calibrating_since = None
+        if self._person.read(state):
+            self.log.info("the person at the wheel sweeps it lock to lock, as the steering asks")
 
     def _loop(self) -> None:
         """Fixed-rate stepping on absolute deadlines, so the rate does not drift."""

@@ -54,19 +54,19 @@ def live(sim_profile, procs):
 DRIVE_TRIPS = ("no feedback from the drive", "drive heartbeat lost")
 
 
-def drive_unless_the_steering_trips(loop: LiveLoop, **kw):
+def unless_the_steering_trips(drive_once):
     """A drive; once more if the steering's own watchdog stopped the first (on a loaded
     2-core machine its drive feedback can miss its 200 ms deadline: a stop the pilot must
     not override by arming again itself, and not the pilot's failure)."""
-    drive = loop.drive(**kw)
+    drive = drive_once()
     if drive.mode == "stopped" and any(trip in drive.reason for trip in DRIVE_TRIPS):
-        drive = loop.drive(**kw)
+        drive = drive_once()
     return drive
 
 
 def test_the_pilot_drives_the_sim_car_round_the_loop(live):
     loop, _ = live
-    drive = drive_unless_the_steering_trips(loop)
+    drive = unless_the_steering_trips(loop.drive)
     assert (drive.mode, drive.reason) == ("finished", "route end"), drive.figures()
     assert drive.checkpoint_miss_m.max() <= 2.0, drive.figures()
     assert rms(drive.estimate_error_m) <= 0.2, drive.figures()        # the receivers are RTK grade
@@ -74,11 +74,11 @@ def test_the_pilot_drives_the_sim_car_round_the_loop(live):
     assert abs(drive.cross_track_m).max() <= 1.0, drive.figures()
 
 
-
-@pytest.mark.parametrize("sim_profile", [SINGLE_POINT], ids=["single-point"], indirect=True)
-def test_a_gnss_cut_is_followed_on_dead_reckoning_or_stopped_for_its_sigma(live):
-    loop, env = live
+def drive_with_a_gnss_cut(loop: LiveLoop, env: dict, cuts: list[dict]):
+    """A drive round the loop with both receivers stopped for 5 s, 5 s into it; what the
+    cut did goes to `cuts`."""
     cut: dict = {}
+    cuts.append(cut)
 
     def gnss_off_for_5_s() -> None:
         # through supervisord's XML-RPC, not `viena stop`: starting two more Python
@@ -98,9 +98,17 @@ def test_a_gnss_cut_is_followed_on_dead_reckoning_or_stopped_for_its_sigma(live)
             cut["thread"].start()
 
     drive = loop.drive(during=during)
-    assert "thread" in cut, (drive.mode, drive.reason, drive.seconds)
-    cut["thread"].join(timeout=60)
-    assert cut.get("off") and cut.get("on")
+    if "thread" in cut:
+        cut["thread"].join(timeout=60)
+    return drive
+
+
+@pytest.mark.parametrize("sim_profile", [SINGLE_POINT], ids=["single-point"], indirect=True)
+def test_a_gnss_cut_is_followed_on_dead_reckoning_or_stopped_for_its_sigma(live):
+    loop, env = live
+    cuts: list[dict] = []
+    drive = unless_the_steering_trips(lambda: drive_with_a_gnss_cut(loop, env, cuts))
+    assert cuts[-1].get("off") and cuts[-1].get("on"), (drive.mode, drive.reason, drive.seconds)
     if drive.mode == "stopped":
         # sigma grew past the setting, or the estimator reset itself when the fixes came
         # back far from its dead reckoning: either way the pilot stopped and said why

@@ -23,7 +23,7 @@ from viena.services.pilot.model.state import PATH
 from viena.services.pilot.model.state import STATE as PILOT_STATE
 from viena.services.sim.model.truth import IST_ORIGIN
 from viena.services.steering.model.state import STATE as STEERING_STATE
-from viena.services.steering.simulator import TwinSettings, start_twin_on_hub
+from viena.services.steering.simulator import PersonAtTheWheel, TwinSettings, start_twin_on_hub
 
 pytestmark = [pytest.mark.slow, pytest.mark.realtime]  # processes: a pilot and a steering, with watchdogs
 
@@ -102,7 +102,12 @@ def car(procs, router, session, tmp_path):
     steering = Latest(session, f"{CAR}/steering/state", STEERING_STATE)
     pilot = Latest(session, f"{CAR}/pilot/state", PILOT_STATE)
     estimator = FakeEstimator(session)
-    assert steering.until(lambda st: st["phase"] == "ready", 30.0), steering.value
+    person = PersonAtTheWheel([twin.twin])      # sweeps again if the service restarts its sweep
+
+    def ready(st) -> bool:
+        person.read(st)
+        return st["phase"] == "ready"
+    assert steering.until(ready, 30.0), steering.value
     yield {"steering": steering, "pilot": pilot, "estimator": estimator, "config": config}
     estimator.close()
     steering.sub.undeclare()

@@ -15,7 +15,7 @@ from vienatest import wait_until
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import LIFE_GUARD_ERROR
 from viena.services.steering.model.state import STATE
-from viena.services.steering.simulator import TwinSettings, start_twin_on_hub
+from viena.services.steering.simulator import PersonAtTheWheel, TwinSettings, start_twin_on_hub
 
 pytestmark = pytest.mark.slow  # the service as a process
 
@@ -47,7 +47,12 @@ def service(procs, router, session, twin, tmp_path):
                 latest.update(STATE.decode(sample.payload.to_bytes()), encoding=str(sample.encoding))
             return bool(latest) and condition(latest)
         return wait_until(check, timeout)
-    assert until(lambda st: st["phase"] == "ready", 20.0), (latest, proc.poll())
+    person = PersonAtTheWheel([twin.twin])      # sweeps again if the service restarts its sweep
+
+    def ready(st) -> bool:
+        person.read(st)
+        return st["phase"] == "ready"
+    assert until(ready, 20.0), (latest, proc.poll())
     yield proc, latest, until
     sub.undeclare()
 

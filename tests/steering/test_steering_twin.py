@@ -13,6 +13,7 @@ from viena.services.steering.driver import EDS_PATH, Emcy, ds402, emcy_name
 from viena.services.steering.driver.emcy import FOLLOWING_ERROR, LIFE_GUARD_ERROR
 from viena.services.steering.model.calibration import SweepRecorder
 from viena.services.steering.simulator.epos_twin import TwinSettings
+from viena.services.steering.simulator.person import PersonAtTheWheel
 
 SHARED = Path(__file__).resolve().parents[3] / "shared/data/steering"
 
@@ -211,6 +212,27 @@ def test_the_twin_sweeps_lock_to_lock_after_power_up_and_the_sweep_is_accepted(m
             break
         rig.run(0.01)
     assert not rig.twin.sweeping and FOLLOWING_ERROR not in rig.twin.errors
+
+
+def test_a_sweep_cut_short_is_swept_again_by_the_person_at_the_wheel(make_rig):
+    """A host that missed the first half of the sweep (a stall: the service restarted it
+    as a glitch) sees half a span, keeps calibrating, and the person sweeps again."""
+    rig = make_rig(TwinSettings(sweep=True, sweep_speed_qc_s=150_000, sweep_delay_s=0.1))
+    rig.drive.configure()
+    person = PersonAtTheWheel([rig.twin], clock=rig.clock)
+    rec, seen_left_stop, asked, cal = SweepRecorder(), False, 0, None
+    for _ in range(2000):
+        rig.run(0.01)
+        qc = rig.drive.feedback().position_qc
+        seen_left_stop = seen_left_stop or qc < -40_000
+        if seen_left_stop:
+            rec.add(qc, rig.clock.t)
+        if rec.done(rig.clock.t):
+            cal = rec.result()
+            break
+        asked += person.read({"phase": "calibrating", "armed": False})
+    assert asked == 1 and cal is not None and 95_000 <= cal.span_qc <= 96_500
+    assert not person.read({"phase": "ready", "armed": False})
 
 
 @pytest.mark.slow  # fits the plant to the recordings

@@ -21,9 +21,10 @@ import canopen
 from viena.common.errors import ConfigError
 from viena.common.twin.slcan_hub import SlcanHub
 from viena.services.steering.simulator.epos_twin import EposTwin, TwinSettings
+from viena.services.steering.simulator.person import PersonAtTheWheel
 from viena.services.steering.simulator.plant import CHIRP005, TRAJ01, PlantParams, PositionPlant
 
-__all__ = ["EposDevice", "EposTwin", "PlantParams", "PositionPlant", "TwinSettings",
+__all__ = ["EposDevice", "EposTwin", "PersonAtTheWheel", "PlantParams", "PositionPlant", "TwinSettings",
            "make_epos_device", "start_twin_on_hub"]
 
 PLANTS = {"traj01": TRAJ01, "chirp005": CHIRP005}
