@@ -18,7 +18,7 @@ from viena.services.sim.devices import start_devices
 from viena.services.sim.model.car import CarParams, SimCar
 from viena.services.sim.model.truth import IST_ORIGIN, TRUTH, truth_sample
 from viena.services.steering.model.state import STATE as STEERING_STATE
-from viena.services.steering.simulator.person import PersonAtTheWheel
+from viena.services.steering.simulator import PersonAtTheWheel
 
 
 @dataclass(frozen=True)

@@ -12,8 +12,7 @@ from vienatest import wait_until
 from viena.services.steering.driver import EDS_PATH, Emcy, ds402, emcy_name
 from viena.services.steering.driver.emcy import FOLLOWING_ERROR, LIFE_GUARD_ERROR
 from viena.services.steering.model.calibration import SweepRecorder
-from viena.services.steering.simulator.epos_twin import TwinSettings
-from viena.services.steering.simulator.person import PersonAtTheWheel
+from viena.services.steering.simulator import PersonAtTheWheel, TwinSettings
 
 SHARED = Path(__file__).resolve().parents[3] / "shared/data/steering"
 

@@ -1,9 +1,9 @@
 """The person at the wheel after power-up, as the sim car and the tests play them.
 
 They read the steering's state as a person reads the monitor: when it has said
-"calibrating" for a while with the wheel at rest (its sweep was refused, or cut short as a
-glitch), they turn the wheel lock to lock again. Without them a twin sweeps once, and a
-sweep the service restarted would wait for ever.
+"calibrating" for a while (its sweep was refused, or thrown away as a glitch) and they are
+not sweeping already, they turn the wheel lock to lock again. Without them a twin sweeps
+once, and a sweep the service threw away would wait for ever.
 """
 from __future__ import annotations
 
