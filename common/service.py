@@ -35,6 +35,7 @@ from viena.common.payload import reply_bytes
 from viena.common.schema import Schema
 from viena.common.session import add_common_arguments, car_name, load_settings_file, open_session, zenoh_config
 from viena.common.settings import add_flags, given_flags, load, specs
+from viena.common.signals import call_on_signals
 
 STOP_DEADLINE_S = 2.0
 HEALTH_PERIOD_S = 1.0
@@ -144,8 +145,7 @@ class Service:
 
     # -- the life ----------------------------------------------------------------------------
     def run(self) -> int:
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, self._on_signal)
+        call_on_signals(self._on_signal)
         self.session = open_session(self.zenoh_config, self.stopping)
         if self.session is None:
             return 0
@@ -178,7 +178,8 @@ class Service:
         return (f"{who} already runs on car {self.keys.car} ({key} is alive): stop that one "
                 f"first{fix}")
 
-    def _on_signal(self, signum, _frame) -> None:
+    def _on_signal(self, signum: int) -> None:
+        """SIGTERM or SIGINT, on a thread of its own (viena.common.signals says why)."""
         if self.stopping.is_set():
             return
         self.log.info("%s: stopping", signal.Signals(signum).name)

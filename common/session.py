@@ -206,16 +206,6 @@ def _as_list(value, source: str, name: str) -> list[str] | None:
     raise ConfigError(f"{source}: setting '{name}' must be an endpoint or a list of endpoints")
 
 
-def stop_on_signals() -> threading.Event:
-    """An event set by SIGTERM or SIGINT (Ctrl-C): how a command-line tool learns to stop."""
-    import signal
-
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
-    return stop
-
-
 class Unreachable(Exception):
     """No session within the time a person asked to wait: one line naming the endpoint."""
 

@@ -18,7 +18,8 @@ import time
 from collections import deque
 from dataclasses import dataclass
 
-from viena.common.session import add_common_arguments, stop_on_signals
+from viena.common.session import add_common_arguments
+from viena.common.signals import stop_on_signals
 from viena.recording import human_bytes
 from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions, tool_logging
 

@@ -36,7 +36,8 @@ from viena.common.display import Alert, fmt_age, fmt_map
 from viena.common.errors import InputError
 from viena.common.health import HealthReport
 from viena.common.keys import Keys
-from viena.common.session import add_common_arguments, config_endpoints, stop_on_signals
+from viena.common.session import add_common_arguments, config_endpoints
+from viena.common.signals import stop_on_signals
 from viena.services.estimator.state import monitor_view as estimator_view
 from viena.services.gnss.model.fix import monitor_view as gnss_view
 from viena.services.imu.model.sample import monitor_view as imu_view

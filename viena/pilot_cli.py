@@ -27,7 +27,8 @@ from pathlib import Path
 from viena.common.errors import InputError
 from viena.common.payload import is_json_text, to_jsonable
 from viena.common.schema import unpack
-from viena.common.session import add_common_arguments, stop_on_signals
+from viena.common.session import add_common_arguments
+from viena.common.signals import stop_on_signals
 from viena.tool import Connection, Fail, add_timeout_flag, guarded, tool_logging
 
 ROUTE_HELP = "give the pilot a route, show it, or record one by driving"

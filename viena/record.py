@@ -26,7 +26,8 @@ import time
 from datetime import UTC, datetime
 from pathlib import Path
 
-from viena.common.session import add_common_arguments, stop_on_signals
+from viena.common.session import add_common_arguments
+from viena.common.signals import stop_on_signals
 from viena.recording import ReceiveClock, RecordingError, RecordingWriter, human_bytes, repair
 from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions, tool_logging
 

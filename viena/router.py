@@ -26,7 +26,8 @@ from viena.common.keys import DEFAULT_CAR
 from viena.common.keystore import KeyStore
 from viena.common.log import setup_logging
 from viena.common.secure import is_loopback, is_secure, secure_router
-from viena.common.session import add_version_flag, check_endpoint, config_endpoints, stop_on_signals
+from viena.common.session import add_version_flag, check_endpoint, config_endpoints
+from viena.common.signals import stop_on_signals
 from viena.paths import router_config
 
 log = logging.getLogger("viena.router")

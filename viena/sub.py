@@ -17,7 +17,8 @@ import time
 from viena.common.errors import InputError
 from viena.common.payload import is_json_text, to_jsonable
 from viena.common.schema import schema_of, unpack
-from viena.common.session import add_common_arguments, stop_on_signals
+from viena.common.session import add_common_arguments
+from viena.common.signals import stop_on_signals
 from viena.tool import CONNECT_TIMEOUT_S, Connection, SilenceWarning, guarded, key_expressions, tool_logging
 
 MISSING = object()

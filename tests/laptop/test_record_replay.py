@@ -100,6 +100,10 @@ def drain(got: queue.Queue) -> list:
     return out
 
 
+#: how much later than the rest the first replayed sample may reach this process
+FIRST_DELIVERY_JITTER_S = 0.1
+
+
 @pytest.mark.parametrize("rate", [1.0, 4.0])
 def test_replay_reproduces_the_recording_with_its_timing(drive, rate):
     out, _, fresh = drive                            # no sim there: only what replay sends
@@ -115,11 +119,13 @@ def test_replay_reproduces_the_recording_with_its_timing(drive, rate):
     assert [(k, p, e) for k, p, e, _ in replayed] == [(m.key, m.data, m.encoding) for m in recorded]
 
     # Timing: replay never publishes a sample before its time, so the replayed span is at
-    # least the recorded one (divided by the rate); an upper bound only guards against
-    # gross errors (this machine is shared).
+    # least the recorded one (divided by the rate), less what the first sample's delivery
+    # lost here (the times are this process's, on arrival: a busy machine once delivered it
+    # 57 ms late, 0.64 s of a 0.69 s span at 4x; a replay at twice the rate would show
+    # 0.35 s); an upper bound only guards against gross errors (this machine is shared).
     recorded_span = (recorded[-1].log_time - recorded[0].log_time) / 1e9 / rate
     replayed_span = replayed[-1][3] - replayed[0][3]
-    assert replayed_span >= recorded_span * 0.98
+    assert replayed_span >= recorded_span * 0.98 - FIRST_DELIVERY_JITTER_S
     assert replayed_span < recorded_span + 1.5
 
 

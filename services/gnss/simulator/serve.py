@@ -11,12 +11,11 @@ the simulated car's default loop.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 
 import numpy as np
 
+from viena.common.signals import stop_on_signals
 from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.sim.model.car import SimCar
 from viena.services.sim.model.truth import IST_ORIGIN, Truth
@@ -62,9 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     truth, car = None, None
     replay = None
     if args.replay:

@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
-import threading
 
+from viena.common.signals import stop_on_signals
 from viena.services.steering.simulator import TwinSettings, start_twin_on_hub
 
 
@@ -26,9 +25,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)-7s %(name)s: %(message)s")
     logging.getLogger("canopen").setLevel(max(logging.WARNING, logging.getLogger().level))
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     device = start_twin_on_hub(TwinSettings(sweep=not args.no_sweep, sweep_speed_qc_s=args.sweep_speed_qc_s),
                                host=args.host, port=args.port)
     print(device.url, flush=True)

@@ -1,0 +1,31 @@
+"""SIGTERM and Ctrl-C stop a program even when they come at the worst moment: while its
+main thread, parked in `Event.wait()`, holds the event's lock on its way in or out
+(viena.common.signals). A handler that set the event itself hung there for ever; once it
+did so in CI, a GNSS twin that got SIGTERM right after saying READY."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+#: a program whose SIGTERM comes while its main thread holds the stop event's lock, as
+#: Event.wait() does on its way into and out of the wait
+AT_THE_WORST_MOMENT = """
+import os, signal
+from viena.common.signals import stop_on_signals
+stop = stop_on_signals()
+with stop._cond:
+    os.kill(os.getpid(), signal.SIGTERM)
+    total = sum(range(1000))        # the handler runs between two of these bytecodes
+print("stopped" if stop.wait(10) else "not stopped")
+"""
+
+
+def test_a_signal_while_the_main_thread_holds_the_stop_events_lock_still_stops_the_program():
+    try:
+        run = subprocess.run([sys.executable, "-c", AT_THE_WORST_MOMENT], capture_output=True, text=True,
+                             timeout=30)
+    except subprocess.TimeoutExpired:
+        pytest.fail("the program hung in its signal handler")
+    assert (run.returncode, run.stdout.strip()) == (0, "stopped"), run.stderr
