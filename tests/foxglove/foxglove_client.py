@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 import socket
 import struct
 import time
@@ -24,6 +25,8 @@ from contextlib import ExitStack
 from dataclasses import dataclass
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+#: the SDK server's status when it refuses a subscription
+UNKNOWN_CHANNEL = re.compile(r"Unknown channel ID: (\d+)")
 MESSAGE_DATA, SERVICE_CALL_REQUEST, SERVICE_CALL_RESPONSE = 0x01, 0x02, 0x03
 
 
@@ -58,7 +61,9 @@ class FoxgloveClient:
         self.server_info: dict = {}
         self.channels: dict[int, dict] = {}
         self.services: dict[str, dict] = {}
+        self.statuses: list[dict] = []
         self._subscriptions: dict[int, dict] = {}
+        self._asked_again: dict[int, int] = {}
         self._next_id = 1
         self._pending: list[Message] = []
         self._responses: dict[int, tuple[str, bytes]] = {}
@@ -85,6 +90,11 @@ class FoxgloveClient:
                     self.channels.pop(cid, None)
             elif op["op"] == "advertiseServices":
                 self.services.update({s["name"]: s for s in op["services"]})
+            elif op["op"] == "status":
+                self.statuses.append(op)
+                unknown = UNKNOWN_CHANNEL.fullmatch(op.get("message", ""))
+                if unknown:
+                    self._subscribe_again(int(unknown.group(1)))
             return
         opcode = frame[0]
         if opcode == MESSAGE_DATA:
@@ -127,6 +137,17 @@ class FoxgloveClient:
             self._subscriptions[self._next_id] = channel
             subs.append({"id": self._next_id, "channelId": channel["id"]})
             self._next_id += 1
+        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
+    def _subscribe_again(self, channel_id: int) -> None:
+        """The server refused a subscription to a channel it had advertised ("Unknown
+        channel ID": once, on a busy machine, to a subscription made while it advertised
+        its channels): ask again, a few times at most, while the channel is advertised."""
+        subs = [{"id": sid, "channelId": channel_id} for sid, c in self._subscriptions.items()
+                if c["id"] == channel_id]
+        if not subs or channel_id not in self.channels or self._asked_again.get(channel_id, 0) >= 5:
+            return
+        self._asked_again[channel_id] = self._asked_again.get(channel_id, 0) + 1
         self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
     def messages(self, seconds: float) -> list[Message]:

@@ -176,18 +176,14 @@ def test_the_live_bridge_sends_the_route_to_a_client_on_its_map_and_in_3d(live_b
     with FoxgloveClient(port) as client:
         put_both()                                               # the first samples advertise the channels
         assert client.wait_for_topics([ROUTE_TOPIC, SCENE_TOPIC, "viena/elettra/foxglove/tf"], timeout=20)
-        topics = (ROUTE_TOPIC, SCENE_TOPIC, "viena/elettra/foxglove/tf")   # the tf, as Foxglove's 3D panel does
+        wanted = [client.channel(t) for t in (ROUTE_TOPIC, SCENE_TOPIC, "viena/elettra/foxglove/tf")]
+        client.subscribe(wanted)                                 # the tf, as Foxglove's 3D panel does
         got: dict[str, list] = {}
         end = time.monotonic() + 20
         while not {ROUTE_TOPIC, SCENE_TOPIC} <= set(got) and time.monotonic() < end:
-            # again after 3 s without: once, on a busy machine, the SDK's server answered
-            # "Unknown channel ID" to a subscription made as the channels were advertised
-            client.subscribe([client.channel(t) for t in topics if t not in got])
-            resubscribe = time.monotonic() + 3
-            while not {ROUTE_TOPIC, SCENE_TOPIC} <= set(got) and time.monotonic() < min(end, resubscribe):
-                put_both()
-                for message in client.messages(0.3):
-                    got.setdefault(message.channel["topic"], []).append(decoder(message.channel)(message.payload))
+            put_both()
+            for message in client.messages(0.3):
+                got.setdefault(message.channel["topic"], []).append(decoder(message.channel)(message.payload))
     assert {ROUTE_TOPIC, SCENE_TOPIC} <= set(got), sorted(got)
     assert client.channel(ROUTE_TOPIC)["schemaName"] == "foxglove.GeoJSON"
     check_route_geojson(json.loads(got[ROUTE_TOPIC][0].geojson), path["lat_deg"], path["lon_deg"])
