@@ -5,13 +5,13 @@ and the owner keeps the wheel."""
 from __future__ import annotations
 
 import json
-import threading
 import time
 
 import msgpack
 import pytest
 import zenoh
 from test_steering_service import KEY, get, service, twin  # noqa: F401  (fixtures)
+from vienatest import wait_for_line
 
 from viena.services.steering.client import ConflictingReplies, SteeringClient
 
@@ -84,34 +84,39 @@ def test_an_impostor_answering_the_steering_keys_is_caught(service, session, rou
         q.undeclare()
 
 
-def test_a_setpoint_flood_from_others_never_starves_the_owner(service, session, router):
-    from viena.common.config import load_zenoh_config
+#: a flooding client, ~10,000 puts/s of setpoints with a wrong lease: a process of its own,
+#: as on the car (a thread of this process would take the GIL from the drive's twin here,
+#: whose late answers then stop the steering for "no feedback from the drive")
+FLOOD = """
+import json, sys, time, zenoh
+from viena.common.config import load_zenoh_config
+with zenoh.open(load_zenoh_config(mode="client", connect=[sys.argv[1]])) as s:
+    pub = s.declare_publisher(sys.argv[2])
+    payload = json.dumps({"angle_deg": 5.0, "lease": "not-the-lease"}).encode()
+    print("flooding", flush=True)
+    while True:
+        for _ in range(100):
+            pub.put(payload)
+        time.sleep(0.01)
+"""
 
+
+def test_a_setpoint_flood_from_others_never_starves_the_owner(service, session, router, procs):
     proc, latest, until = service
     owner = SteeringClient(session)
     assert owner.arm()["status"] == "accepted"
-    stop = threading.Event()
-
-    def flood():
-        with zenoh.open(load_zenoh_config(mode="client", connect=[router])) as s:
-            pub = s.declare_publisher(f"{KEY}/setpoint")
-            payload = json.dumps({"angle_deg": 5.0, "lease": "not-the-lease"}).encode()
-            while not stop.is_set():
-                for _ in range(100):
-                    pub.put(payload)
-                time.sleep(0.01)                      # ~10,000 puts/s from each
-    floods = [threading.Thread(target=flood) for _ in range(2)]
-    for f in floods:
-        f.start()
+    floods = [procs.python("-c", FLOOD, router, f"{KEY}/setpoint") for _ in range(2)]
+    for flood in floods:
+        wait_for_line(flood.stdout, "flooding", 30)
     try:
         replies = []
         for k in range(60):                           # 3 s of the owner's stream at 20 Hz
             replies.append(owner.setpoint(0.2 * (k % 2)))
             time.sleep(0.05)
     finally:
-        stop.set()
-        for f in floods:
-            f.join()
+        for flood in floods:
+            flood.kill()
+            flood.wait()
     assert all(r["status"] in ("accepted", "clamped") for r in replies), [r for r in replies
                                                                           if r["status"] == "rejected"][:3]
     assert until(lambda st: st["armed"] and st["trip"] == ""), latest
