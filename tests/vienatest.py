@@ -159,3 +159,35 @@ def wait_for_queryable(session, keyexpr: str, timeout: float = 10.0) -> bool:
         return wait_until(lambda: querier.matching_status.matching, timeout)
     finally:
         querier.undeclare()
+
+
+
+#: EPOS twin settings (TwinSettings) whose person sweeps the wheel lock to lock in under a
+#: second after power-up, so that a steering service on it calibrates quickly
+FAST_SWEEP = {"sweep_speed_qc_s": 400_000.0, "sweep_delay_s": 0.1, "sweep_hold_s": 0.05}
+
+
+def fast_sweeping_twin():
+    """An EPOS twin behind an slcan hub (`start_twin_on_hub`) with FAST_SWEEP; stop it at
+    the end."""
+    from viena.services.steering.simulator import TwinSettings, start_twin_on_hub
+
+    return start_twin_on_hub(TwinSettings(**FAST_SWEEP))
+
+
+def steering_on(procs: Processes, router: str, twin, config: Path):
+    """`viena-steering` (started by `procs`) on `twin`, its settings written to `config`:
+    (process, ready), where `ready(state)` says whether a steering state is past its
+    calibration, and lets the person at the wheel read it (they sweep again if the service
+    threw a sweep away, as a stalled host makes it do)."""
+    from viena.services.steering.simulator import PersonAtTheWheel
+
+    config.write_text("[steering]\nsweep_settle_s = 0.2\n")
+    proc = procs.python("-m", "viena.services.steering.service", "--connect", router, "--config", config,
+                        "--interface", "slcan", "--channel", twin.url, "--log-level", "WARNING")
+    person = PersonAtTheWheel([twin.twin])
+
+    def ready(state: dict) -> bool:
+        person.read(state)
+        return state["phase"] == "ready"
+    return proc, ready

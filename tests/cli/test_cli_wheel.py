@@ -21,7 +21,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from vienatest import free_port, wait_for_line, wait_for_port
+from vienatest import Processes, free_port, wait_for_line, wait_for_port
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
@@ -61,9 +61,9 @@ class Installed:
     def viena(self, *args, timeout: float = 120) -> subprocess.CompletedProcess:
         return self.run(self.venv / "bin" / "viena", *args, timeout=timeout)
 
-    def popen(self, *args) -> subprocess.Popen:
-        return subprocess.Popen([str(a) for a in args], cwd=self.work, env=self.env, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True)
+    def popen(self, procs: Processes, *args) -> subprocess.Popen:
+        """Started by `procs`, which kills it at the end of the test if it is still there."""
+        return procs.start(*args, cwd=self.work, env=self.env)
 
 
 @pytest.fixture(scope="module")
@@ -115,9 +115,9 @@ def test_every_profile_and_the_steering_eds_are_there(installed):
     assert eds.returncode == 0 and int(eds.stdout) > 10_000, eds.stderr
 
 
-def test_router_starts_from_its_packaged_config(installed):
+def test_router_starts_from_its_packaged_config(installed, procs):
     port = free_port()
-    router = installed.popen(installed.venv / "bin" / "viena", "router", "--listen", f"tcp/127.0.0.1:{port}")
+    router = installed.popen(procs, installed.venv / "bin" / "viena", "router", "--listen", f"tcp/127.0.0.1:{port}")
     try:
         wait_for_port(port, timeout=30)
         assert router.poll() is None
@@ -127,8 +127,8 @@ def test_router_starts_from_its_packaged_config(installed):
     assert "Traceback" not in router.stderr.read()
 
 
-def test_gnss_twin_replays_the_shipped_drive(installed):
-    twin = installed.popen(installed.python, "-m", "viena.services.gnss.simulator", "--replay", "drive")
+def test_gnss_twin_replays_the_shipped_drive(installed, procs):
+    twin = installed.popen(procs, installed.python, "-m", "viena.services.gnss.simulator", "--replay", "drive")
     try:
         assert wait_for_line(twin.stdout, "READY", timeout=60).startswith("READY socket://")
     finally:

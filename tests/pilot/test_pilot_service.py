@@ -13,7 +13,7 @@ import threading
 
 import msgpack
 import pytest
-from vienatest import PYTHON, collect, wait_for_line, wait_for_queryable, wait_until
+from vienatest import PYTHON, collect, fast_sweeping_twin, steering_on, wait_for_line, wait_for_queryable, wait_until
 
 from benchmarks.pilot import loop_route
 from viena.common.geodesy import LocalFrame
@@ -23,7 +23,6 @@ from viena.services.pilot.model.state import PATH
 from viena.services.pilot.model.state import STATE as PILOT_STATE
 from viena.services.sim.model.truth import IST_ORIGIN
 from viena.services.steering.model.state import STATE as STEERING_STATE
-from viena.services.steering.simulator import PersonAtTheWheel, TwinSettings, start_twin_on_hub
 
 pytestmark = [pytest.mark.slow, pytest.mark.realtime]  # processes: a pilot and a steering, with watchdogs
 
@@ -94,19 +93,12 @@ class Latest:
 @pytest.fixture
 def car(procs, router, session, tmp_path):
     """The steering service on its twin, ready; an estimator stand-in; state watchers."""
-    twin = start_twin_on_hub(TwinSettings(sweep_speed_qc_s=400_000, sweep_delay_s=0.1, sweep_hold_s=0.05))
+    twin = fast_sweeping_twin()
     config = tmp_path / "car.toml"
-    config.write_text("[steering]\nsweep_settle_s = 0.2\n")
-    procs.python("-m", "viena.services.steering.service", "--connect", router, "--config", config,
-                 "--interface", "slcan", "--channel", twin.url, "--log-level", "WARNING")
+    _, ready = steering_on(procs, router, twin, config)
     steering = Latest(session, f"{CAR}/steering/state", STEERING_STATE)
     pilot = Latest(session, f"{CAR}/pilot/state", PILOT_STATE)
     estimator = FakeEstimator(session)
-    person = PersonAtTheWheel([twin.twin])      # sweeps again if the service restarts its sweep
-
-    def ready(st) -> bool:
-        person.read(st)
-        return st["phase"] == "ready"
     assert steering.until(ready, 30.0), steering.value
     yield {"steering": steering, "pilot": pilot, "estimator": estimator, "config": config}
     estimator.close()

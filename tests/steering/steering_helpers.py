@@ -13,6 +13,7 @@ import math
 import threading
 
 import canopen
+import vienatest
 
 from viena.services.steering.controller import ControllerSettings, SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
@@ -22,7 +23,7 @@ from viena.services.steering.simulator.epos_twin import EposTwin, TwinSettings
 
 _channels = itertools.count()
 WALL_NS_AT_0 = 1_700_000_000_000_000_000
-FAST_SWEEP = TwinSettings(sweep_speed_qc_s=400_000, sweep_delay_s=0.1, sweep_hold_s=0.05)
+FAST_SWEEP = TwinSettings(**vienatest.FAST_SWEEP)
 
 
 class SimClock:

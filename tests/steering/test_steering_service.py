@@ -10,12 +10,11 @@ import time
 
 import msgpack
 import pytest
-from vienatest import wait_until
+from vienatest import fast_sweeping_twin, steering_on, wait_until
 
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import LIFE_GUARD_ERROR
 from viena.services.steering.model.state import STATE
-from viena.services.steering.simulator import PersonAtTheWheel, TwinSettings, start_twin_on_hub
 
 pytestmark = pytest.mark.slow  # the service as a process
 
@@ -24,17 +23,14 @@ KEY = "viena/elettra/steering"
 
 @pytest.fixture
 def twin():
-    dev = start_twin_on_hub(TwinSettings(sweep_speed_qc_s=400_000, sweep_delay_s=0.1, sweep_hold_s=0.05))
+    dev = fast_sweeping_twin()
     yield dev
     dev.stop()
 
 
 @pytest.fixture
 def service(procs, router, session, twin, tmp_path):
-    config = tmp_path / "steering.toml"
-    config.write_text("[steering]\nsweep_settle_s = 0.2\n")
-    proc = procs.python("-m", "viena.services.steering.service", "--connect", router, "--config", config,
-                        "--interface", "slcan", "--channel", twin.url, "--log-level", "WARNING")
+    proc, ready = steering_on(procs, router, twin, tmp_path / "steering.toml")
     states: queue.Queue = queue.Queue()
     sub = session.declare_subscriber(f"{KEY}/state", lambda s: states.put(s))
     latest = {}
@@ -47,11 +43,6 @@ def service(procs, router, session, twin, tmp_path):
                 latest.update(STATE.decode(sample.payload.to_bytes()), encoding=str(sample.encoding))
             return bool(latest) and condition(latest)
         return wait_until(check, timeout)
-    person = PersonAtTheWheel([twin.twin])      # sweeps again if the service restarts its sweep
-
-    def ready(st) -> bool:
-        person.read(st)
-        return st["phase"] == "ready"
     assert until(ready, 20.0), (latest, proc.poll())
     yield proc, latest, until
     sub.undeclare()

@@ -5,7 +5,7 @@ import math
 import types
 
 import pytest
-from vienatest import wait_until
+from vienatest import FAST_SWEEP, wait_until
 
 from viena.common.errors import ConfigError
 from viena.services.sim.model.car import SimCar
@@ -16,8 +16,6 @@ from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.model.safety import Envelope
 from viena.services.steering.simulator import make_epos_device
 
-FAST = {"sweep_speed_qc_s": 400_000.0, "sweep_delay_s": 0.1, "sweep_hold_s": 0.05}
-
 
 def fake_service():
     return types.SimpleNamespace(args=types.SimpleNamespace(config="sim.toml"), settings=SimSettings())
@@ -26,7 +24,7 @@ def fake_service():
 @pytest.fixture
 def device():
     car = SimCar()
-    dev = make_epos_device("epos0", {"port": 0, **FAST}, car, fake_service())
+    dev = make_epos_device("epos0", {"port": 0, **FAST_SWEEP}, car, fake_service())
     yield dev, car
     dev.stop()
 
