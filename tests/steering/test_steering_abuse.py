@@ -104,11 +104,11 @@ with zenoh.open(load_zenoh_config(mode="client", connect=[sys.argv[1]])) as s:
 def test_a_setpoint_flood_from_others_never_starves_the_owner(service, session, router, procs):
     proc, latest, until = service
     owner = SteeringClient(session)
-    assert owner.arm()["status"] == "accepted"
     floods = [procs.python("-c", FLOOD, router, f"{KEY}/setpoint") for _ in range(2)]
-    for flood in floods:
-        wait_for_line(flood.stdout, "flooding", 30)
+    for flood in floods:                              # flooding before the owner arms: a
+        wait_for_line(flood.stdout, "flooding", 30)   # process start outlasts the watchdog
     try:
+        assert owner.arm()["status"] == "accepted"
         replies = []
         for k in range(60):                           # 3 s of the owner's stream at 20 Hz
             replies.append(owner.setpoint(0.2 * (k % 2)))
