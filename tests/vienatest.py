@@ -180,14 +180,21 @@ def steering_on(procs: Processes, router: str, twin, config: Path):
     (process, ready), where `ready(state)` says whether a steering state is past its
     calibration, and lets the person at the wheel read it (they sweep again if the service
     threw a sweep away, as a stalled host makes it do)."""
-    from viena.services.steering.simulator import PersonAtTheWheel
-
     config.write_text("[steering]\nsweep_settle_s = 0.2\n")
     proc = procs.python("-m", "viena.services.steering.service", "--connect", router, "--config", config,
                         "--interface", "slcan", "--channel", twin.url, "--log-level", "WARNING")
-    person = PersonAtTheWheel([twin.twin])
+    return proc, calibrated_with_a_person_at(twin.twin)
+
+
+def calibrated_with_a_person_at(wheel) -> Callable[[dict], bool]:
+    """`ready(state)`: whether a steering state is past its calibration. It lets a person
+    at the wheel (an EposTwin) read the state too, who sweeps again if the steering threw a
+    sweep away, as a stalled host makes it do."""
+    from viena.services.steering.simulator import PersonAtTheWheel
+
+    person = PersonAtTheWheel([wheel])
 
     def ready(state: dict) -> bool:
         person.read(state)
         return state["phase"] == "ready"
-    return proc, ready
+    return ready

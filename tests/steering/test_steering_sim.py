@@ -5,7 +5,7 @@ import math
 import types
 
 import pytest
-from vienatest import FAST_SWEEP, wait_until
+from vienatest import FAST_SWEEP, calibrated_with_a_person_at, wait_until
 
 from viena.common.errors import ConfigError
 from viena.services.sim.model.car import SimCar
@@ -53,8 +53,9 @@ def test_a_setpoint_over_slcan_turns_the_simulated_car(device):
                                     bus_options={"sleep_after_open": 0, "timeout": 0.01}))
     ctl = SteeringController(drive, Envelope(), CalibrationSettings(sweep_settle_s=0.2))
     ctl.start()
+    ready = calibrated_with_a_person_at(dev.twin)
     try:
-        assert wait_until(lambda: ctl.phase == "ready", 10.0), ctl.state()
+        assert wait_until(lambda: ready(ctl.state()), 10.0), ctl.state()
         lease = ctl.request("arm", {"arm": True})["lease"]
 
         def steering_left():
@@ -73,14 +74,15 @@ def test_the_controller_reconnects_when_the_adapter_comes_back(device):
                                     bus_options={"sleep_after_open": 0, "timeout": 0.01}))
     ctl = SteeringController(drive, Envelope(), CalibrationSettings(sweep_settle_s=0.2))
     ctl.start()
+    ready = calibrated_with_a_person_at(dev.twin)
     try:
-        assert wait_until(lambda: ctl.phase == "ready", 10.0), ctl.state()
+        assert wait_until(lambda: ready(ctl.state()), 10.0), ctl.state()
         ctl.request("arm", {"arm": True})
         dev.hub.stop()                                  # the USB adapter is pulled out
         assert wait_until(lambda: not ctl.link_ok and ctl.phase == "connecting", 2.0)
         assert not ctl.envelope.armed and "CAN link lost" in ctl.state()["trip"]
         dev.hub = SlcanHub(dev.hub.channel, port=dev.port).start()    # and plugged back in
-        assert wait_until(lambda: ctl.phase == "ready", 15.0), ctl.state()
+        assert wait_until(lambda: ready(ctl.state()), 15.0), ctl.state()
         assert ctl.request("arm", {"arm": True})["status"] == "accepted"
     finally:
         ctl.stop()
