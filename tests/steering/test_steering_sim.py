@@ -46,8 +46,11 @@ def test_bad_device_settings_are_config_errors(table, match):
         make_epos_device("epos0", table, SimCar(), fake_service())
 
 
-@pytest.mark.slow  # a calibration sweep in real time
-def test_a_setpoint_over_slcan_turns_the_simulated_car(device):
+@pytest.fixture
+def steering(device):
+    """A steering controller on the device over slcan, as the service runs it, and
+    `calibrated()`: whether it is past its calibration (a person at the wheel sweeps again
+    if a stalled test process made it throw a sweep away)."""
     dev, car = device
     drive = EposDrive(DriveSettings(interface="slcan", channel=dev.url,
                                     bus_options={"sleep_after_open": 0, "timeout": 0.01}))
@@ -55,34 +58,34 @@ def test_a_setpoint_over_slcan_turns_the_simulated_car(device):
     ctl.start()
     ready = calibrated_with_a_person_at(dev.twin)
     try:
-        assert wait_until(lambda: ready(ctl.state()), 10.0), ctl.state()
-        lease = ctl.request("arm", {"arm": True})["lease"]
-
-        def steering_left():
-            ctl.request("setpoint", {"angle_deg": 6.0, "lease": lease})
-            return abs(math.degrees(car.step(0.02).wheel_angle_rad) - 6.0) < 0.3
-        assert wait_until(steering_left, 3.0, period=0.02)
+        yield ctl, lambda: ready(ctl.state())
     finally:
         ctl.stop()
+
+
+@pytest.mark.slow  # a calibration sweep in real time
+def test_a_setpoint_over_slcan_turns_the_simulated_car(device, steering):
+    dev, car = device
+    ctl, calibrated = steering
+    assert wait_until(calibrated, 10.0), ctl.state()
+    lease = ctl.request("arm", {"arm": True})["lease"]
+
+    def steering_left():
+        ctl.request("setpoint", {"angle_deg": 6.0, "lease": lease})
+        return abs(math.degrees(car.step(0.02).wheel_angle_rad) - 6.0) < 0.3
+    assert wait_until(steering_left, 3.0, period=0.02)
 
 
 @pytest.mark.slow  # two calibration sweeps in real time
-def test_the_controller_reconnects_when_the_adapter_comes_back(device):
+def test_the_controller_reconnects_when_the_adapter_comes_back(device, steering):
     from viena.common.twin.slcan_hub import SlcanHub
     dev, car = device
-    drive = EposDrive(DriveSettings(interface="slcan", channel=dev.url,
-                                    bus_options={"sleep_after_open": 0, "timeout": 0.01}))
-    ctl = SteeringController(drive, Envelope(), CalibrationSettings(sweep_settle_s=0.2))
-    ctl.start()
-    ready = calibrated_with_a_person_at(dev.twin)
-    try:
-        assert wait_until(lambda: ready(ctl.state()), 10.0), ctl.state()
-        ctl.request("arm", {"arm": True})
-        dev.hub.stop()                                  # the USB adapter is pulled out
-        assert wait_until(lambda: not ctl.link_ok and ctl.phase == "connecting", 2.0)
-        assert not ctl.envelope.armed and "CAN link lost" in ctl.state()["trip"]
-        dev.hub = SlcanHub(dev.hub.channel, port=dev.port).start()    # and plugged back in
-        assert wait_until(lambda: ready(ctl.state()), 15.0), ctl.state()
-        assert ctl.request("arm", {"arm": True})["status"] == "accepted"
-    finally:
-        ctl.stop()
+    ctl, calibrated = steering
+    assert wait_until(calibrated, 10.0), ctl.state()
+    ctl.request("arm", {"arm": True})
+    dev.hub.stop()                                  # the USB adapter is pulled out
+    assert wait_until(lambda: not ctl.link_ok and ctl.phase == "connecting", 2.0)
+    assert not ctl.envelope.armed and "CAN link lost" in ctl.state()["trip"]
+    dev.hub = SlcanHub(dev.hub.channel, port=dev.port).start()    # and plugged back in
+    assert wait_until(calibrated, 15.0), ctl.state()
+    assert ctl.request("arm", {"arm": True})["status"] == "accepted"
