@@ -47,6 +47,7 @@ from benchmarks.harness import (
 )
 from benchmarks.security import open_as, sim_car
 from benchmarks.steering import _wait_ready
+from viena.common.signals import stop_on_signals
 
 CAR = "viena/elettra"
 #: the key that shows each program of the sim profile is back
@@ -150,16 +151,17 @@ def restarts(env: dict, heard: Heard) -> list[tuple[str, float | None, float | N
 # -- 2. the owner under a flood --------------------------------------------------------------
 def flood(router: str, rate_hz: float, seconds: float) -> int:
     """Put setpoints with a foreign lease at `rate_hz` (a process of its own) until SIGTERM
-    or `seconds`; prints how many it put, and at what rate."""
+    or `seconds`; says "flooding" on stderr once it puts, and at the end prints how many it
+    put, and at what rate. The steering tests start it too."""
     import zenoh
 
     from viena.common.config import load_zenoh_config
 
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = stop_on_signals((signal.SIGTERM,))
     sent = 0
     with zenoh.open(load_zenoh_config(mode="client", connect=[router])) as session:
         pub = session.declare_publisher(f"{CAR}/steering/setpoint")
+        print(f"flooding {CAR}/steering/setpoint at {rate_hz:.0f} puts/s", file=sys.stderr, flush=True)
         t0 = time.monotonic()
         end = t0 + seconds
         while not stop.is_set() and (now := time.monotonic()) < end:

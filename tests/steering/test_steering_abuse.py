@@ -84,29 +84,20 @@ def test_an_impostor_answering_the_steering_keys_is_caught(service, session, rou
         q.undeclare()
 
 
-#: a flooding client, ~10,000 puts/s of setpoints with a wrong lease: a process of its own,
-#: as on the car (a thread of this process would take the GIL from the drive's twin here,
-#: whose late answers then stop the steering for "no feedback from the drive")
-FLOOD = """
-import json, sys, time, zenoh
-from viena.common.config import load_zenoh_config
-with zenoh.open(load_zenoh_config(mode="client", connect=[sys.argv[1]])) as s:
-    pub = s.declare_publisher(sys.argv[2])
-    payload = json.dumps({"angle_deg": 5.0, "lease": "not-the-lease"}).encode()
-    print("flooding", flush=True)
-    while True:
-        for _ in range(100):
-            pub.put(payload)
-        time.sleep(0.01)
-"""
+#: a flooding client: `viena bench faults`' flooder, setpoints with a wrong lease at this
+#: rate, a process of its own as on the car (a thread of this process would take the GIL
+#: from the drive's twin here, whose late answers then stop the steering for "no feedback
+#: from the drive")
+FLOOD_RATE_HZ = 10_000
 
 
 def test_a_setpoint_flood_from_others_never_starves_the_owner(service, session, router, procs):
     proc, latest, until = service
     owner = SteeringClient(session)
-    floods = [procs.python("-c", FLOOD, router, f"{KEY}/setpoint") for _ in range(2)]
+    floods = [procs.python("-m", "benchmarks.faults", "--flood", router, "--flood-rate", FLOOD_RATE_HZ)
+              for _ in range(2)]
     for flood in floods:                              # flooding before the owner arms: a
-        wait_for_line(flood.stdout, "flooding", 30)   # process start outlasts the watchdog
+        wait_for_line(flood.stderr, "flooding", 30)   # process start outlasts the watchdog
     try:
         assert owner.arm()["status"] == "accepted"
         replies = []
