@@ -48,6 +48,7 @@ from benchmarks.harness import (
 from benchmarks.security import open_as, sim_car
 from benchmarks.steering import _wait_ready
 from viena.common.signals import stop_on_signals
+from viena.services.steering.model.signing import signed_setpoint
 
 CAR = "viena/elettra"
 #: the key that shows each program of the sim profile is back
@@ -55,7 +56,8 @@ OWN_KEY = {"router": "sim/truth", "sim": "sim/truth", "gnss0": "gnss/gnss0/fix",
            "gnss1": "gnss/gnss1/fix", "razor0": "imu/razor0/sample", "steering": "steering/state",
            "estimator": "estimator/state"}
 PI_PROGRAMS = ["router", "gnss0", "gnss1", "razor0", "steering", "estimator"]
-FOREIGN = json.dumps({"angle_deg": 5.0, "lease": "not-the-lease"}).encode()
+#: a setpoint signed with a lease that is not the owner's (what a flooder or a forger sends)
+FOREIGN = json.dumps(signed_setpoint("not-the-lease", 5.0, seq=1)).encode()
 
 
 def supervisor(env: dict):
@@ -245,7 +247,8 @@ def bad_inputs(imu_sample: dict) -> list[tuple[str, str, str, bytes, int]]:
         ("900 kB JSON setpoint", "steering/setpoint", "put", b'{"a": "' + b"x" * 900_000 + b'"}', 20),
         ("2000-deep JSON", "steering/setpoint", "get", b"[" * 2000 + b"]" * 2000, 50),
         ("deep msgpack", "steering/calibration", "get", msgpack.packb({"a": [[[[[[[[[[1]]]]]]]]]]}), 50),
-        ("absurd setpoint", "steering/setpoint", "get", json.dumps({"angle_deg": 1e308, "lease": "x"}).encode(), 100),
+        ("absurd setpoint", "steering/setpoint", "get",
+         json.dumps(signed_setpoint("x", 1e308, seq=1)).encode(), 100),
         ("invalid UTF-8", "steering/arm", "get", b"{\"arm\": \"\xff\xfe\"}", 100),
         ("discovery query", "**", "get", b"", 20),
         ("900 kB route", "pilot/route", "put", b'{"type": "LineString", "coordinates": "' + b"9" * 900_000 + b'"}', 20),

@@ -198,3 +198,95 @@ def calibrated_with_a_person_at(wheel) -> Callable[[dict], bool]:
         person.read(state)
         return state["phase"] == "ready"
     return ready
+
+
+def signed(payload, lease: str | None = None):
+    """A setpoint as its owner sends it: `{"angle_deg": x, "lease": L}` (the form tests read
+    best) becomes the signed setpoint (model/signing.py) with a fresh seq, keeping its other
+    fields (`t`, unknown ones) so the envelope still sees what the test meant. `lease` signs
+    a payload without one. Anything that is not such a map comes back as it is."""
+    from viena.services.steering.model.signing import next_seq, setpoint_mac
+
+    if not isinstance(payload, dict):
+        return payload
+    lease = payload.get("lease", lease)
+    if not isinstance(lease, str):
+        return payload
+    out = {k: v for k, v in payload.items() if k != "lease"}
+    out.setdefault("seq", next_seq())
+    unit = "rad" if "angle_rad" in out and "angle_deg" not in out else "deg"
+    t = out.get("t") if isinstance(out.get("t"), int) else None
+    try:
+        out["mac"] = setpoint_mac(lease, unit, float(out.get(f"angle_{unit}")), out["seq"], t)
+    except Exception:                             # noqa: BLE001  (struct.error among others)
+        out["mac"] = "0" * 32                   # an angle no client could sign: refused before the code
+    return out
+
+
+class Hijacker:
+    """A second pilot who reads every sample of the car (what `viena/<car>/**` gives any
+    pilot or observer, and what `viena record` stores) and steers with whatever it saw:
+    each setpoint sent again as it was, with the hijacker's angle, with a later seq or a
+    fresh stamp, and every piece of text seen used as a lease, in the clear and as a key to
+    sign with; by put and by query. `accepted` holds the queries answered accepted or
+    clamped; what the puts did shows in the steering's state."""
+
+    def __init__(self, session, car: str = "elettra", angle_deg: float = -25.0):
+        self.session, self.prefix, self.angle_deg = session, f"viena/{car}", angle_deg
+        self.setpoints: list[dict] = []
+        self.texts: set[str] = set()
+        self.accepted: list[dict] = []
+        self.sent = 0
+        self.sub = session.declare_subscriber(f"{self.prefix}/**", self._on_sample)
+
+    def _on_sample(self, sample) -> None:
+        from viena.common.errors import PayloadError
+        from viena.common.payload import parse_payload
+
+        try:
+            value = parse_payload(sample.payload.to_bytes(), max_bytes=1 << 20, max_depth=64)
+        except PayloadError:
+            return
+        if str(sample.key_expr).endswith("/steering/setpoint"):
+            self.setpoints.append(value)
+        self._collect_texts(value)
+
+    def _collect_texts(self, value) -> None:
+        if isinstance(value, dict):
+            for item in (*value.keys(), *value.values()):
+                self._collect_texts(item)
+        elif isinstance(value, list):
+            for item in value:
+                self._collect_texts(item)
+        elif isinstance(value, str) and 8 <= len(value) <= 64:
+            self.texts.add(value)
+
+    def forgeries(self) -> list[dict]:
+        """Everything the hijacker can make of what it saw so far."""
+        from viena.services.steering.model.signing import next_seq, signed_setpoint
+
+        made: list[dict] = []
+        for seen in self.setpoints[-10:]:
+            made += [seen, {**seen, "angle_deg": self.angle_deg}, {**seen, "seq": next_seq()},
+                     {**seen, "t": time.time_ns(), "seq": next_seq(), "angle_deg": self.angle_deg}]
+        for text in sorted(self.texts)[:100]:
+            made += [{"angle_deg": self.angle_deg, "lease": text}, signed_setpoint(text, self.angle_deg)]
+        return made
+
+    def attack(self) -> int:
+        """One round: every forgery by put and by query; how many were sent."""
+        forgeries = self.forgeries()
+        key = f"{self.prefix}/steering/setpoint"
+        for payload in forgeries:
+            data = json.dumps(payload).encode()
+            self.session.put(key, data)
+            for reply in self.session.get(key, payload=data, timeout=2.0):
+                if reply.ok is not None:
+                    answer = json.loads(reply.ok.payload.to_bytes())
+                    if answer.get("status") in ("accepted", "clamped"):
+                        self.accepted.append({"sent": payload, "answer": answer})
+        self.sent += 2 * len(forgeries)
+        return len(forgeries)
+
+    def close(self) -> None:
+        self.sub.undeclare()

@@ -4,6 +4,11 @@ The watchdog (500 ms by default) gives up on a client that stops talking, so one
 get` typed by hand is too slow to keep the wheel; this keeps the stream going:
 
     python -m viena.services.steering.client --connect tcp/127.0.0.1:7447 --angle-deg 5 --seconds 10
+
+Setpoints are signed with the lease, never sent with it (model/signing.py). For the `zenoh`
+CLI, `--sign LEASE` prints one signed setpoint to put or get:
+
+    zenoh put -k viena/elettra/steering/setpoint -v "$(viena-steer --sign "$LEASE" --angle-deg 5)"
 """
 from __future__ import annotations
 
@@ -12,6 +17,8 @@ import json
 import os
 import sys
 import time
+
+from viena.services.steering.model.signing import signed_setpoint
 
 KEY = "viena/{car}/steering/{name}"
 
@@ -34,8 +41,9 @@ class SteeringClient:
     answers must come from exactly one replier, and once armed from the one that granted
     the lease. Anything else raises ConflictingReplies."""
 
-    def __init__(self, session, car: str = "elettra", timeout_s: float = 2.0):
+    def __init__(self, session, car: str = "elettra", timeout_s: float = 2.0, name: str | None = None):
         self.session, self.car, self.timeout_s = session, car, timeout_s
+        self.name = name                       # who this is, for the steering's log of e-stops
         self.lease: str | None = None
         self.replier: str | None = None        # the steering service that granted the lease
         self.last_replier: str | None = None
@@ -72,18 +80,25 @@ class SteeringClient:
             self.replier = self.last_replier
         return reply
 
+    def signed(self, angle_deg: float) -> dict:
+        """A setpoint signed with the lease (never carrying it): nobody who sees it can use it
+        for an angle of their own, or send it again."""
+        if self.lease is None:
+            raise RuntimeError("not armed: arm() first, the lease signs every setpoint")
+        return signed_setpoint(self.lease, angle_deg)
+
     def setpoint(self, angle_deg: float, timeout_s: float | None = None) -> dict:
-        return self.ask("setpoint", {"angle_deg": angle_deg, "lease": self.lease}, timeout_s)
+        return self.ask("setpoint", self.signed(angle_deg), timeout_s)
 
     def put_setpoint(self, angle_deg: float) -> None:
-        """A setpoint as a put, with the lease: nothing comes back (the steering's state says
-        whether it still steers for this lease), so a stream costs a fraction of `setpoint`'s."""
+        """A signed setpoint as a put: nothing comes back (the steering's state says whether
+        it still steers for this lease), so a stream costs a fraction of `setpoint`'s."""
         import msgpack
         import zenoh
 
         if self._setpoint_pub is None:
             self._setpoint_pub = self.session.declare_publisher(KEY.format(car=self.car, name="setpoint"))
-        self._setpoint_pub.put(msgpack.packb({"angle_deg": angle_deg, "lease": self.lease}),
+        self._setpoint_pub.put(msgpack.packb(self.signed(angle_deg)),
                                encoding=zenoh.Encoding("application/msgpack"))
 
     def close(self) -> None:
@@ -98,7 +113,7 @@ class SteeringClient:
         return reply
 
     def estop(self) -> dict:
-        return self.ask("estop", {})
+        return self.ask("estop", {"by": self.name} if self.name else {})
 
     def hold(self, angle_deg: float, seconds: float, rate_hz: float = 20.0) -> dict:
         """Stream one angle; returns the last reply (stops early on a rejection)."""
@@ -127,24 +142,33 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="viena-steer", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--angle-deg", type=float, required=True, help="wheel angle in degrees, positive left")
+    p.add_argument("--sign", metavar="LEASE",
+                   help="print one setpoint signed with LEASE (JSON, for `zenoh put`/`get`) and exit")
+    p.add_argument("--stamp", action="store_true",
+                   help="with --sign: stamp it with this machine's time (refused once 0.5 s old: "
+                        "only where this clock agrees with the steering's)")
     p.add_argument("--seconds", type=float, default=5.0, help="how long to hold it (default 5)")
     p.add_argument("--rate-hz", type=float, default=20.0, help="setpoints per second (default 20)")
     p.add_argument("--timeout", type=float, default=10.0,
                    help="give up if the router cannot be reached in this many seconds (default 10)")
     add_common_arguments(p)
     args = p.parse_args(argv)
+    if args.sign is not None:
+        print(json.dumps(signed_setpoint(args.sign, args.angle_deg, t_ns=time.time_ns() if args.stamp else None)))
+        return 0
     setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
     try:
         toml = load_settings_file(args)
         car = car_name(args, toml)
         # a person at the wheel: their own identity ($VIENA_IDENTITY or --identity), else `pilot`
-        conf = zenoh_config(args, toml, identity=os.environ.get("VIENA_IDENTITY") or "pilot")
+        identity = os.environ.get("VIENA_IDENTITY") or "pilot"
+        conf = zenoh_config(args, toml, identity=identity)
         session = open_session(conf, timeout_s=args.timeout)
     except (InputError, Unreachable) as exc:
         print(f"viena-steer: {exc}", file=sys.stderr)
         return 2
     try:
-        client = SteeringClient(session, car)
+        client = SteeringClient(session, car, name=identity)
         reply = client.arm()
         print(json.dumps(reply))
         if reply.get("status") != "accepted":
@@ -155,7 +179,7 @@ def main(argv=None) -> int:
             print(json.dumps(client.disarm()))
     except ConflictingReplies as exc:
         print(f"viena-steer: stopped: {exc}", file=sys.stderr)
-        session.put(KEY.format(car=car, name="estop"), b"{}")     # the real service takes puts too
+        session.put(KEY.format(car=car, name="estop"), json.dumps({"by": identity}).encode())   # puts too
         return 3
     finally:
         session.close()

@@ -150,7 +150,7 @@ class SteeringController:
         return box.get(timeout=timeout)
 
     def estop(self, payload=None) -> dict:
-        """Quick stop now, whoever asks and whatever they send; disarms."""
+        """Quick stop now, whoever asks and whatever they send (a `by` in it is logged); disarms."""
         return self._decide(parse_request("estop", payload), None)
 
     def _decide(self, request: Request, reply: ReplyFn | None) -> dict | None:

@@ -2,7 +2,8 @@
 
     viena/<car>/steering/arm          query  {"arm": true} -> {"status", "lease", ...}
                                              {"arm": false, "lease": L}
-    viena/<car>/steering/setpoint     query or put  {"angle_deg": x, "lease": L} (or angle_rad)
+    viena/<car>/steering/setpoint     query or put  {"angle_deg": x, "seq": n, "t": ns, "mac": M}
+                                             (or angle_rad), signed with the lease (model/signing.py)
                                              -> {"status": accepted|clamped|rejected, "reason",
                                                  "target_deg", "angle_deg", "limits"}
     viena/<car>/steering/estop        query or put, any payload: quick stop, disarm
@@ -120,12 +121,14 @@ class SteeringService(Service):
             self.health.count("discovery_queries")
             reply_to(query, describe("estop", own), encoding, data, own)
             return
-        if self._parse("estop", data, encoding, query) is not None:
-            reply_to(query, self.controller.estop(), encoding, data)
+        payload = self._parse("estop", data, encoding, query)
+        if payload is not None:
+            reply_to(query, self.controller.estop(payload), encoding, data)
 
     def _estop_put(self, sample: zenoh.Sample) -> None:
-        if self._parse("estop", sample.payload.to_bytes(), str(sample.encoding)) is not None:
-            self.controller.estop()
+        payload = self._parse("estop", sample.payload.to_bytes(), str(sample.encoding))
+        if payload is not None:
+            self.controller.estop(payload)
 
     def _publish_state(self, state: dict) -> None:
         if self._state_pub.put(state):
@@ -137,9 +140,11 @@ class SteeringService(Service):
 
 COMMANDS = {
     "arm": ('{"arm": true} -> a lease; {"arm": false, "lease": L} to disarm', "pilot"),
-    "setpoint": ('{"angle_deg": x, "lease": L} (or angle_rad), as a query or a put', "pilot"),
+    "setpoint": ('{"angle_deg": x, "seq": n, "t": ns, "mac": M} signed with the lease (never the lease '
+                 'itself; `viena-steer --sign L --angle-deg x` makes one), as a query or a put', "pilot"),
     "calibration": ('{} for the status, {"restart": true} (disarmed), {"finish": true}', "pilot"),
-    "estop": ("{} (any map), as a put or a query: quick stop now, disarm", "pilot or observer"),
+    "estop": ('{} (any map; {"by": NAME} names you in the log), as a put or a query: quick stop now, disarm',
+              "pilot or observer"),
 }
 
 

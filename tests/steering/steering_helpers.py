@@ -145,7 +145,9 @@ class SimSteering:
 
     # -- what a client does ----------------------------------------------------------------
     def request(self, kind: str, payload, seconds: float = 2.0) -> dict:
-        """Ask, and step the clock until the answer comes (an arm's takes a few periods)."""
+        """Ask, and step the clock until the answer comes (an arm's takes a few periods); a
+        setpoint is signed with the lease it names, as a client sends it."""
+        payload = vienatest.signed(payload) if kind == "setpoint" else payload
         box: list[dict] = []
         self.ctl.submit(kind, payload, box.append)
         assert self.run_until(lambda: bool(box), seconds), f"no answer to {kind} {payload}"

@@ -11,7 +11,7 @@ import msgpack
 import pytest
 import zenoh
 from test_steering_service import KEY, get, service, twin  # noqa: F401  (fixtures)
-from vienatest import wait_for_line
+from vienatest import signed, wait_for_line
 
 from viena.services.steering.client import ConflictingReplies, SteeringClient
 
@@ -30,7 +30,7 @@ def test_a_discovery_query_describes_and_never_stops_the_car(service, session):
                     else msgpack.unpackb(r.payload.to_bytes()) for r in replies]
     assert {d["key"].rsplit("/", 1)[1] for d in descriptions} == {"arm", "setpoint", "calibration", "estop"}
     assert all(d["status"] == "description" for d in descriptions)
-    session.put(f"{KEY}/setpoint", json.dumps({"angle_deg": 1.0, "lease": lease}))
+    session.put(f"{KEY}/setpoint", json.dumps(signed({"angle_deg": 1.0, "lease": lease})))
     assert until(lambda st: st["armed"] and st["trip"] == ""), latest       # still the owner's
 
 
@@ -48,7 +48,7 @@ def test_an_empty_estop_query_is_an_accident_a_map_is_an_estop(service, session)
 def test_absurd_setpoints_are_refused_not_clamped(service, session, angle):
     proc, latest, until = service
     lease = arm(session)
-    data, _ = get(session, "setpoint", json.dumps({"angle_deg": angle, "lease": lease}).encode())
+    data, _ = get(session, "setpoint", json.dumps(signed({"angle_deg": angle, "lease": lease})).encode())
     reply = json.loads(data)
     assert reply["status"] == "rejected" and reply["reason"].startswith("absurd"), reply
 
@@ -84,7 +84,7 @@ def test_an_impostor_answering_the_steering_keys_is_caught(service, session, rou
         q.undeclare()
 
 
-#: a flooding client: `viena bench faults`' flooder, setpoints with a wrong lease at this
+#: a flooding client: `viena bench faults`' flooder, setpoints signed with a wrong lease at this
 #: rate, a process of its own as on the car (a thread of this process would take the GIL
 #: from the drive's twin here, whose late answers then stop the steering for "no feedback
 #: from the drive")
@@ -114,7 +114,7 @@ def test_a_setpoint_flood_from_others_never_starves_the_owner(service, session, 
     owner.disarm()
     proc.terminate()
     _, err = proc.communicate(timeout=10)
-    flood_lines = [line for line in err.splitlines() if "not the owner" in line]
+    flood_lines = [line for line in err.splitlines() if "not signed with the owner's lease" in line]
     assert len(flood_lines) <= 3, len(flood_lines)
 
 
@@ -127,7 +127,7 @@ def test_after_a_restart_the_service_says_why_the_drive_is_in_fault(service, ses
     proc, latest, until = service
     lease = arm(session)
     for _ in range(10):
-        session.put(f"{KEY}/setpoint", json.dumps({"angle_deg": 2.0, "lease": lease}))
+        session.put(f"{KEY}/setpoint", json.dumps(signed({"angle_deg": 2.0, "lease": lease})))
         time.sleep(0.02)
     proc.kill()                                  # the drive faults through its life guard
     proc.wait(5)

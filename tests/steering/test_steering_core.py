@@ -13,6 +13,7 @@ from pathlib import Path
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from vienatest import signed
 
 from viena.services.steering.driver import Emcy, ds402
 from viena.services.steering.driver.epos import NMT_OPERATIONAL, POSITION_MODE, Feedback
@@ -67,6 +68,8 @@ class Bench:
         return self.core.tick(self.t, self.reading())
 
     def ask(self, kind: str, payload, token="T") -> tuple[dict | None, list]:
+        """A client's request; a setpoint signed with the lease it names, as a client sends it."""
+        payload = signed(payload) if kind == "setpoint" else payload
         return self.core.handle(parse_request(kind, payload), self.t, WALL_NS, self.reading(), token)
 
     def configured(self) -> None:
@@ -244,6 +247,21 @@ def test_a_setpoint_goes_to_the_drive_at_once():
     assert frames == [SendTarget(round(b.core.calibration.qc_of(1.0)))]
     answer, frames = b.ask("setpoint", {"angle_deg": 1.0, "lease": "guess"})
     assert answer["status"] == "rejected" and frames == []
+
+
+def test_an_estop_is_logged_with_its_sender_and_a_flood_of_them_once(caplog):
+    b = Bench()
+    b.armed()
+    with caplog.at_level("WARNING", logger="viena.steering"):
+        b.ask("estop", {"by": "bob"})
+        for _ in range(1000):
+            b.t += 0.005
+            b.ask("estop", {"by": "bob"})
+        b.ask("estop", {})
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("estop")]
+    assert lines[0] == "estop: was armed, from 'bob' (as it says)"
+    assert lines[1:] == ["estop: was not armed, from 'bob' (as it says)",
+                         "estop: was not armed, from a sender that did not say who"], lines
 
 
 def test_the_watchdog_quick_stops_on_time_and_powers_off_after_the_hold():

@@ -8,6 +8,7 @@ import math
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from vienatest import signed
 
 from viena.services.steering.model.requests import parse_setpoint
 from viena.services.steering.model.safety import (
@@ -49,6 +50,11 @@ class Timed:
         return self.env.arm(measured_deg, self.clock.t, lease)
 
     def setpoint(self, payload, measured_deg):
+        """`payload` as its sender would send it: signed with the lease it names."""
+        return self.env.setpoint(parse_setpoint(signed(payload)), measured_deg, self.clock.t, WALL_NS)
+
+    def raw_setpoint(self, payload, measured_deg):
+        """`payload` exactly as given (a replay, a forgery)."""
         return self.env.setpoint(parse_setpoint(payload), measured_deg, self.clock.t, WALL_NS)
 
     def tick(self, measured_deg):
@@ -94,13 +100,46 @@ def test_malformed_setpoints_are_rejected_with_the_reason(payload, reason):
     assert d.status == REJECTED and reason in d.reason and d.target_deg is None
 
 
-def test_no_lease_a_foreign_lease_or_no_arm_is_rejected():
+def test_unsigned_foreign_or_unarmed_setpoints_are_rejected():
     env = make_envelope()
     assert "not armed" in env.setpoint({"angle_deg": 1.0, "lease": "x"}, 0.0).reason
     lease = env.arm(0.0)
-    assert "missing lease" in env.setpoint({"angle_deg": 1.0}, 0.0).reason
-    assert "not the owner" in env.setpoint({"angle_deg": 1.0, "lease": lease + "x"}, 0.0).reason
-    assert "lease must be text" in env.setpoint({"angle_deg": 1.0, "lease": 7}, 0.0).reason
+    assert "missing mac" in env.setpoint({"angle_deg": 1.0, "seq": 1}, 0.0).reason
+    assert "not signed with the owner's lease" in env.setpoint({"angle_deg": 1.0, "lease": lease + "x"}, 0.0).reason
+    assert "mac must be text" in env.raw_setpoint({"angle_deg": 1.0, "seq": 1, "mac": 7}, 0.0).reason
+    assert "seq must be an integer" in env.raw_setpoint({"angle_deg": 1.0, "seq": "x", "mac": "00"}, 0.0).reason
+    assert env.setpoint({"angle_deg": 0.0, "lease": lease}, 0.0).status == ACCEPTED
+
+
+def test_a_setpoint_carrying_the_lease_itself_is_refused_even_from_the_owner():
+    """The lease never goes on the wire after the arm's reply: a client that sends it has
+    given it to everyone who can read the key (every pilot and observer, every recording)."""
+    env = make_envelope()
+    lease = env.arm(0.0)
+    d = env.raw_setpoint({"angle_deg": 1.0, "lease": lease}, 0.0)
+    assert d.status == REJECTED and "never carries the lease" in d.reason
+
+
+def test_whoever_sees_the_owners_setpoints_can_neither_replay_nor_alter_them():
+    """What a second pilot reads on steering/setpoint (or in a recording) is angles, counters
+    and codes: sent again it is a replay, changed it no longer matches its code."""
+    clock = FakeClock()
+    env = make_envelope(clock)
+    lease = env.arm(0.0)
+    seen = signed({"angle_deg": 1.0, "lease": lease})
+    clock.t += 0.05
+    assert env.raw_setpoint(seen, 0.0).status == ACCEPTED
+    clock.t += 0.05
+    replay = env.raw_setpoint(seen, 0.0)
+    assert replay.status == REJECTED and "replayed" in replay.reason
+    for forged in ({**seen, "angle_deg": 20.0}, {**seen, "seq": seen["seq"] + 1},
+                   {**seen, "t": WALL_NS}, {**seen, "angle_rad": 1.0, "angle_deg": None}):
+        forged = {k: v for k, v in forged.items() if v is not None}
+        d = env.raw_setpoint(forged, 0.0)
+        assert d.status == REJECTED and "not signed with the owner's lease" in d.reason, (forged, d)
+    older = signed({"angle_deg": 2.0, "lease": lease, "seq": seen["seq"] - 1})
+    assert "replayed" in env.raw_setpoint(older, 0.0).reason
+    assert env.target_deg == pytest.approx(1.0) and env.armed
 
 
 def test_stale_and_future_stamps_are_rejected():
@@ -111,6 +150,9 @@ def test_stale_and_future_stamps_are_rejected():
     assert "stale" in env.setpoint({"angle_deg": 1.0, "lease": lease, "t": now - 2 * 10 ** 9}, 0.0).reason
     assert "future" in env.setpoint({"angle_deg": 1.0, "lease": lease, "t": now + 2 * 10 ** 9}, 0.0).reason
     assert "integer time" in env.setpoint({"angle_deg": 1.0, "lease": lease, "t": 1.5}, 0.0).reason
+    stale = signed({"angle_deg": 1.0, "lease": lease, "t": now - 2 * 10 ** 9})
+    assert "stale" in env.raw_setpoint(stale, 0.0).reason
+    assert env.raw_setpoint({**stale, "t": now}, 0.0).status == REJECTED     # a fresh stamp on it: forged
 
 
 def test_beyond_the_range_is_clamped_to_the_range_minus_the_margin():
@@ -227,6 +269,7 @@ setpoint_payloads = st.one_of(
     st.fixed_dictionaries({"angle_deg": angles, "lease": st.just("OWNER")}),
     st.fixed_dictionaries({"angle_rad": angles, "lease": st.just("OWNER")}),
     st.fixed_dictionaries({"angle_deg": angles, "lease": st.one_of(st.text(max_size=8), st.integers(), st.none())}),
+    st.fixed_dictionaries({"angle_deg": angles, "seq": st.integers(-2, 2 ** 64), "mac": st.text(max_size=33)}),
     st.fixed_dictionaries({"angle_deg": angles}),
     st.dictionaries(st.text(max_size=6), st.one_of(angles, st.just("OWNER")), max_size=4),
     st.one_of(st.text(max_size=5), st.integers(), st.none(), st.lists(st.integers(), max_size=3)),
@@ -277,14 +320,15 @@ def test_for_any_input_the_drive_only_sees_targets_inside_the_envelope(script, m
 
     def send(payload, wheel):
         nonlocal last_valid
-        if isinstance(payload, dict) and payload.get("lease") == "OWNER":
+        by_owner = isinstance(payload, dict) and payload.get("lease") == "OWNER" and owner is not None
+        if by_owner:
             payload = {**payload, "lease": owner}
         late = env.armed and clock.t - last_valid > SAFE.watchdog_s
-        d = env.setpoint(payload, wheel)
+        d = env.setpoint(payload, wheel)           # signed with the lease the payload names
         if late:
             assert not env.armed and d.status == REJECTED, "a setpoint after the deadline was taken"
         if d.status in (ACCEPTED, CLAMPED):
-            assert owner is not None and isinstance(payload, dict) and payload.get("lease") == owner
+            assert by_owner, f"taken without the owner's signature: {payload}"
             last_valid = clock.t
         else:
             assert d.target_deg is None

@@ -10,7 +10,7 @@ import time
 
 import msgpack
 import pytest
-from vienatest import fast_sweeping_twin, steering_on, wait_until
+from vienatest import fast_sweeping_twin, signed, steering_on, wait_until
 
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import LIFE_GUARD_ERROR
@@ -60,16 +60,16 @@ def test_the_zenoh_api_in_json_and_msgpack(service, session, twin):
     data, enc = get(session, "arm", b'{"arm": true}')
     assert enc == "application/json"
     lease = json.loads(data)["lease"]
-    data, enc = get(session, "setpoint", msgpack.packb({"angle_deg": 4.0, "lease": lease}))
+    data, enc = get(session, "setpoint", msgpack.packb(signed({"angle_deg": 4.0, "lease": lease})))
     assert enc.startswith("application/msgpack")
     reply = msgpack.unpackb(data)
     assert reply["status"] == "clamped" and reply["limits"] == ["slew"] and reply["goal_deg"] == 4.0
     for _ in range(25):                          # puts: no reply, same treatment
-        session.put(f"{KEY}/setpoint", json.dumps({"angle_deg": 4.0, "lease": lease}))
+        session.put(f"{KEY}/setpoint", json.dumps(signed({"angle_deg": 4.0, "lease": lease})))
         time.sleep(0.02)
     assert until(lambda st: st["angle_deg"] is not None and abs(st["angle_deg"] - 4.0) < 0.3), latest
     assert latest["armed"] and latest["target_deg"] == 4.0 and latest["ds402"] == ds402.OPERATION_ENABLED
-    data, _ = get(session, "setpoint", b'{"angle_deg": "left", "lease": "%s"}' % lease.encode())
+    data, _ = get(session, "setpoint", json.dumps(signed({"angle_deg": "left", "lease": lease})).encode())
     assert json.loads(data)["status"] == "rejected" and "must be a number" in json.loads(data)["reason"]
     data, _ = get(session, "setpoint", b"{not json")
     assert json.loads(data)["status"] == "rejected" and "JSON" in json.loads(data)["reason"]
@@ -94,7 +94,7 @@ def test_killing_the_service_makes_the_drive_fault_through_its_heartbeat_consume
     proc, latest, until = service
     lease = json.loads(get(session, "arm", b'{"arm": true}')[0])["lease"]
     for _ in range(10):
-        session.put(f"{KEY}/setpoint", json.dumps({"angle_deg": 2.0, "lease": lease}))
+        session.put(f"{KEY}/setpoint", json.dumps(signed({"angle_deg": 2.0, "lease": lease})))
         time.sleep(0.02)
     assert twin.twin.state == ds402.OPERATION_ENABLED
     proc.send_signal(signal.SIGKILL)                  # no goodbye: only the heartbeat stops

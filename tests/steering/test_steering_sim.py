@@ -5,7 +5,7 @@ import math
 import types
 
 import pytest
-from vienatest import FAST_SWEEP, calibrated_with_a_person_at, wait_until
+from vienatest import FAST_SWEEP, calibrated_with_a_person_at, signed, wait_until
 
 from viena.common.errors import ConfigError
 from viena.services.sim.model.car import SimCar
@@ -71,7 +71,7 @@ def test_a_setpoint_over_slcan_turns_the_simulated_car(device, steering):
     lease = ctl.request("arm", {"arm": True})["lease"]
 
     def steering_left():
-        ctl.request("setpoint", {"angle_deg": 6.0, "lease": lease})
+        ctl.request("setpoint", signed({"angle_deg": 6.0, "lease": lease}))
         return abs(math.degrees(car.step(0.02).wheel_angle_rad) - 6.0) < 0.3
     assert wait_until(steering_left, 3.0, period=0.02)
 

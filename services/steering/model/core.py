@@ -25,6 +25,7 @@ import logging
 from dataclasses import dataclass
 from enum import StrEnum
 
+from viena.common.log import Throttled
 from viena.common.settings import setting
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import Emcy
@@ -103,6 +104,8 @@ class SteeringCore:
         self._checking: Calibration | None = None     # being written to the drive
         self._disable_at: float | None = None
         self._seen_feedback = 0
+        self._now = 0.0                                # the time last told, for the throttled log
+        self._estops = Throttled(log, "estop", clock=lambda: self._now)
         self._backoff = Backoff(settings.reconnect_min_s, settings.reconnect_max_s)
         self._out: list = []
 
@@ -282,7 +285,7 @@ class SteeringCore:
         elif isinstance(request, Disarm):
             answer = self._disarm(request, now)
         elif isinstance(request, Estop):
-            answer = self._estop(now)
+            answer = self._estop(now, request.by)
         elif isinstance(request, CalibrationRequest):
             answer = self._calibration_request(request, now)
         elif isinstance(request, Refused):
@@ -291,11 +294,14 @@ class SteeringCore:
             raise TypeError(f"not a request: {request!r}")
         return answer, self._take()
 
-    def _estop(self, now: float) -> dict:
-        """Quick stop now, whoever asks and whatever they send; disarms."""
+    def _estop(self, now: float, by: str = "") -> dict:
+        """Quick stop now, whoever asks and whatever they send; disarms. Logged with the
+        sender when it says who it is; a flood of them is a line per cause and interval."""
         was_armed = self.envelope.armed
         self._stop_drive(now, "estop")
-        log.warning("estop (%s)", "was armed" if was_armed else "was not armed")
+        self._now = now
+        sender = f"from '{by}' (as it says)" if by else "from a sender that did not say who"
+        self._estops.log(f"{'was armed' if was_armed else 'was not armed'}, {sender}")
         return {"status": ACCEPTED, "reason": "quick stop, then power off", "was_armed": was_armed}
 
     def _arm(self, request: Arm, now: float, reading: DriveReading, token) -> dict | None:

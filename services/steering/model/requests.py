@@ -4,8 +4,10 @@ A payload (a map already decoded from JSON or msgpack) becomes one of:
 
     Arm(lease)                   {"arm": true} or, to renew, {"arm": true, "lease": L}
     Disarm(lease)                {"arm": false, "lease": L}
-    Setpoint(angle_deg, lease)   {"angle_deg": x, "lease": L} or angle_rad; optional t, seq
-    Estop()                      anything: an e-stop is never refused for its form
+    Setpoint(angle_deg, ...)     {"angle_deg": x, "seq": n, "t": ns, "mac": M} or angle_rad:
+                                 signed with the lease (model/signing.py), which it never carries
+    Estop(by)                    anything: an e-stop is never refused for its form; a text
+                                 `by` names the sender (as it says) for the log
     CalibrationRequest(action)   {} (status), {"restart": true}, {"finish": true}
 
 or, when it is malformed, `Refused(reason)` (`BadSetpoint(reason)` for a setpoint: the
@@ -17,8 +19,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from viena.common.text import printable
+from viena.services.steering.model.signing import SEQ_MAX, setpoint_mac
+
 ARM_FIELDS = frozenset({"arm", "lease"})
-SETPOINT_FIELDS = frozenset({"angle_deg", "angle_rad", "lease", "t", "seq"})
+SETPOINT_FIELDS = frozenset({"angle_deg", "angle_rad", "t", "seq", "mac"})
 CALIBRATION_ACTIONS = ("status", "restart", "finish")
 
 
@@ -35,14 +40,21 @@ class Disarm:
 @dataclass(frozen=True)
 class Setpoint:
     angle_deg: float                  # finite; in degrees even when sent as angle_rad
-    lease: str
+    mac: str                          # the code the client made with its lease
+    seq: int                          # the client's counter: grows with every setpoint
     t_ns: int | None = None           # when the client made it (ns UTC), for the age check
-    seq: object = None                # the client's own counter; carried, never checked
+    unit: str = "deg"                 # the angle as sent, which is what was signed
+    value: float | None = None        # (angle_deg itself when None)
+
+    def signed_by(self, lease: str) -> str:
+        """The code this setpoint would carry if `lease` had signed it."""
+        value = self.angle_deg if self.value is None else self.value
+        return setpoint_mac(lease, self.unit, value, self.seq, self.t_ns)
 
 
 @dataclass(frozen=True)
 class Estop:
-    pass
+    by: str = ""                      # who sent it, as the sender says (zenoh does not tell)
 
 
 @dataclass(frozen=True)
@@ -77,7 +89,7 @@ def parse_arm(payload) -> Arm | Disarm | Refused:
         return Refused("expected a map like {\"arm\": true}")
     unknown = sorted(str(k) for k in payload if k not in ARM_FIELDS)
     if unknown:
-        return Refused(f"unknown field '{unknown[0]}' (known: arm, lease)")
+        return Refused(f"unknown field '{printable(unknown[0])}' (known: arm, lease)")
     arm, lease = payload.get("arm"), payload.get("lease")
     if not isinstance(arm, bool):
         return Refused("arm must be true or false")
@@ -89,25 +101,35 @@ def parse_arm(payload) -> Arm | Disarm | Refused:
 def parse_setpoint(payload) -> Setpoint | BadSetpoint:
     if not isinstance(payload, dict):
         return BadSetpoint(f"expected a map, got {type(payload).__name__}")
+    if "lease" in payload:
+        return BadSetpoint("a setpoint never carries the lease: sign it with the lease instead "
+                           "(seq and mac: docs/steering.md#signed-setpoints)")
     unknown = sorted(str(k) for k in payload if k not in SETPOINT_FIELDS)
     if unknown:
-        return BadSetpoint(f"unknown field '{unknown[0]}' (known: angle_deg or angle_rad, lease, t, seq)")
+        return BadSetpoint(f"unknown field '{printable(unknown[0])}' (known: angle_deg or angle_rad, seq, t, mac)")
     requested, why = _requested_deg(payload)
     if why:
         return BadSetpoint(why)
-    lease = payload.get("lease")
-    if lease is None:
-        return BadSetpoint("missing lease: arm first, then send its lease", requested)
-    if not isinstance(lease, str):
-        return BadSetpoint("lease must be text", requested)
-    t = payload.get("t")
-    if t is not None and (isinstance(t, bool) or not isinstance(t, int)):
+    mac, seq, t = payload.get("mac"), payload.get("seq"), payload.get("t")
+    if mac is None:
+        return BadSetpoint("missing mac: sign the setpoint with the lease the arm gave you", requested)
+    if not isinstance(mac, str):
+        return BadSetpoint("mac must be text (hex digits)", requested)
+    if not _int64(seq):
+        return BadSetpoint("seq must be an integer 0..2^63-1 that grows with every setpoint", requested)
+    if t is not None and not _int64(t):
         return BadSetpoint("t must be an integer time in ns UTC", requested)
-    return Setpoint(requested, lease, t, payload.get("seq"))
+    unit = "deg" if "angle_deg" in payload else "rad"
+    return Setpoint(requested, mac, seq, t, unit, float(payload[f"angle_{unit}"]))
+
+
+def _int64(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= SEQ_MAX
 
 
 def parse_estop(payload) -> Estop:
-    return Estop()
+    by = payload.get("by") if isinstance(payload, dict) else None
+    return Estop(printable(by, 32)) if isinstance(by, str) else Estop()
 
 
 def parse_calibration(payload) -> CalibrationRequest | Refused:

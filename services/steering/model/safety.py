@@ -6,7 +6,8 @@ CAN or threads. It never talks to the drive: it answers what the target is, and 
 the watchdog has tripped; `core.SteeringCore` sends and stops.
 
 - Rejected: a malformed setpoint (`requests.BadSetpoint`: not a map of known fields; a
-  missing, non-numeric or non-finite angle; no lease); someone else's lease; a stale
+  missing, non-numeric or non-finite angle; no code); one not signed with the owner's
+  lease (model/signing.py), or replayed (its `seq` not above the last one taken); a stale
   timestamp; any setpoint while disarmed or tripped.
 - Limited (the reply says "clamped" and which limit): the goal to the calibrated range
   minus a margin; each target sent to the drive to the slew rate since the previous one,
@@ -29,6 +30,7 @@ from dataclasses import dataclass, field
 
 from viena.common.settings import setting
 from viena.services.steering.model.requests import BadSetpoint, Setpoint
+from viena.services.steering.model.signing import macs_match
 
 log = logging.getLogger("viena.steering.safety")
 
@@ -58,7 +60,8 @@ class Decision:
 
 
 def lease_hash(lease: str | None) -> str | None:
-    """What the state shows of a lease: enough to tell owners apart, useless to steal."""
+    """What the state shows of a lease: enough to tell owners apart, useless to steal (the
+    lease itself travels only in the arm's reply, to the one who armed)."""
     return None if lease is None else hashlib.sha256(lease.encode()).hexdigest()[:12]
 
 
@@ -74,6 +77,7 @@ class Envelope:
         self.target_deg: float | None = None
         self.target_t: float | None = None
         self.last_valid_t: float | None = None
+        self.last_seq = -1                # the owner's last signed setpoint taken (replays refused)
         self.tripped = ""                 # why the last trip happened ("" = none since arm)
         self.last: Decision | None = None
         self._log = DecisionLog()
@@ -126,6 +130,7 @@ class Envelope:
             raise PermissionError(refusal)
         if not self.armed:
             self.lease = secrets.token_urlsafe(16)
+            self.last_seq = -1
             self.goal_deg = self.target_deg = float(measured_deg)
             self.target_t = now_s
         self.armed = True
@@ -182,11 +187,16 @@ class Envelope:
         if not self.armed:
             why = f"not armed ({self.tripped}): arm again" if self.tripped else "not armed"
             return Decision(REJECTED, why, requested)
-        if not self._is_owner(request.lease):
-            return Decision(REJECTED, "lease is not the owner's: another client holds the wheel", requested)
+        if not macs_match(request.signed_by(self.lease), request.mac):
+            return Decision(REJECTED, "not signed with the owner's lease: another client holds the wheel",
+                            requested)
+        if request.seq <= self.last_seq:
+            return Decision(REJECTED, f"replayed: seq {request.seq} is not above the last taken "
+                                      f"({self.last_seq})", requested)
         stale = self._stale(request.t_ns, wall_ns)
         if stale:
             return Decision(REJECTED, stale, requested)
+        self.last_seq = request.seq
         if measured_deg is None or not math.isfinite(measured_deg):
             return Decision(REJECTED, "no position from the drive", requested)
         lo, hi = self.allowed_deg

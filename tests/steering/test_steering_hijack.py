@@ -1,0 +1,61 @@
+"""The hijack probe of issue 24 against a person's client: a second pilot reads every sample
+of the car while the owner steers with puts (which everyone who may subscribe receives) and
+queries, and sends back whatever it can make of them. Setpoints are signed with a lease
+that never travels, so not one of its setpoints is taken."""
+from __future__ import annotations
+
+import threading
+
+import pytest
+from test_steering_service import KEY, service, twin  # noqa: F401  (fixtures)
+from vienatest import Hijacker, open_session, wait_until
+
+from viena.services.steering.client import SteeringClient
+from viena.services.steering.model.state import STATE
+
+pytestmark = pytest.mark.slow
+
+ROUNDS = 10
+OWNER_DEG = 2.0
+
+
+def test_a_second_pilot_who_sees_every_sample_steers_nothing(service, session, router):
+    proc, latest, until = service
+    owner = SteeringClient(session)
+    arm = owner.arm()
+    assert arm["status"] == "accepted", arm
+    stop = threading.Event()
+
+    def stream():                                    # puts at 20 Hz, a query now and then
+        k = 0
+        while not stop.is_set():
+            if k % 10 == 0:
+                owner.setpoint(OWNER_DEG)
+            else:
+                owner.put_setpoint(OWNER_DEG)
+            k += 1
+            stop.wait(0.05)
+
+    streamer = threading.Thread(target=stream, daemon=True)
+    goals: list[float | None] = []                   # every state's goal while under attack
+    watch = session.declare_subscriber(f"{KEY}/state",
+                                       lambda s: goals.append(STATE.decode(s.payload.to_bytes())["goal_deg"]))
+    with open_session(router) as other:
+        mallory = Hijacker(other)
+        streamer.start()
+        try:
+            assert wait_until(lambda: len(mallory.setpoints) >= 5, 5.0), "the owner's puts were not seen"
+            for _ in range(ROUNDS):
+                assert mallory.attack() > 0
+        finally:
+            stop.set()
+            streamer.join(5)
+            mallory.close()
+            watch.undeclare()
+    assert mallory.accepted == [], mallory.accepted[:2]
+    assert len(goals) > 20 and all(g is None or abs(g - OWNER_DEG) < 1e-6 for g in goals), \
+        sorted(set(goals), key=str)
+    assert until(lambda st: st["armed"] and st["owner"] == arm["owner"] and st["trip"] == ""), latest
+    assert owner.setpoint(OWNER_DEG)["status"] in ("accepted", "clamped")     # the owner still steers
+    assert owner.disarm()["status"] == "accepted"
+    assert mallory.sent >= ROUNDS * 2 * 4 * 5
