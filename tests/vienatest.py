@@ -235,6 +235,7 @@ class Hijacker:
         self.session, self.prefix, self.angle_deg = session, f"viena/{car}", angle_deg
         self.setpoints: list[dict] = []
         self.texts: set[str] = set()
+        self.raw: list[bytes] = []               # every sample's bytes, as a recording holds them
         self.accepted: list[dict] = []
         self.sent = 0
         self.sub = session.declare_subscriber(f"{self.prefix}/**", self._on_sample)
@@ -243,8 +244,9 @@ class Hijacker:
         from viena.common.errors import PayloadError
         from viena.common.payload import parse_payload
 
+        self.raw.append(sample.payload.to_bytes())
         try:
-            value = parse_payload(sample.payload.to_bytes(), max_bytes=1 << 20, max_depth=64)
+            value = parse_payload(self.raw[-1], max_bytes=1 << 20, max_depth=64)
         except PayloadError:
             return
         if str(sample.key_expr).endswith("/steering/setpoint"):

@@ -136,6 +136,7 @@ class SteeringService(Service):
             self.health.mark_sample()
         self.health.set("phase", state["phase"])
         self.health.set("armed", state["armed"])
+        self.health.set("setpoints_refused", dict(self.controller.envelope.refused))
 
 
 COMMANDS = {

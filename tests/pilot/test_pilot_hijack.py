@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 from test_pilot_service import CAR, car, following, start_pilot  # noqa: F401  (fixtures)
-from vienatest import Hijacker, open_session, wait_until
+from vienatest import Hijacker, open_session, wait_for_subscriber, wait_until
 
 from viena.services.steering.model.state import STATE as STEERING_STATE
 
@@ -27,7 +27,8 @@ def test_a_second_pilot_cannot_steer_under_the_autopilots_lease(procs, router, s
     with open_session(router) as other:
         mallory = Hijacker(other, angle_deg=HIJACK_DEG)
         try:
-            assert wait_until(lambda: len(mallory.setpoints) >= 5, 5.0), "the autopilot's puts were not seen"
+            assert wait_for_subscriber(session, f"{CAR}/steering/setpoint")
+            assert wait_until(lambda: len(mallory.setpoints) >= 5, 10.0), "the autopilot's puts were not seen"
             for _ in range(ROUNDS):
                 assert mallory.attack() > 0
         finally:

@@ -9,13 +9,14 @@ import queue
 import shlex
 import subprocess
 import sys
+import threading
 import time
 from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
 import zenoh
-from vienatest import collect, collect_until, wait_for_port, wait_for_subscriber
+from vienatest import Hijacker, collect, collect_until, wait_for_port, wait_for_subscriber, wait_until
 
 from viena.common.config import load_zenoh_config
 from viena.common.health import HEALTH
@@ -78,6 +79,7 @@ def test_every_program_runs_with_its_own_certificate(store, car):
 def test_an_observer_cannot_arm_steer_or_calibrate(store, car):
     with session_as(store, car, "observer") as observer:
         client = SteeringClient(observer, timeout_s=1.0)
+        client.lease = "a-lease-the-observer-made-up"
         for reply in (client.arm(), client.setpoint(5.0), client.ask("calibration", {})):
             assert reply["status"] == "rejected" and "no answer" in reply["reason"]
         state = collect(observer, f"{CAR}/steering/state", 1, timeout=5, decode=STEERING.decode)[0]
@@ -144,6 +146,23 @@ def test_a_pilot_steers_and_a_second_pilot_is_refused(store, car):
             stolen = SteeringClient(alice)
             stolen.lease = "not-the-lease"
             assert stolen.setpoint(0.0)["status"] == "rejected"
+            # alice may read everything, the owner's setpoint puts too: she steers with none of it
+            mallory, stop = Hijacker(alice), threading.Event()
+
+            def stream():
+                while not stop.wait(0.05):
+                    owner.put_setpoint(arm["angle_deg"] + 2.0)
+            streamer = threading.Thread(target=stream, daemon=True)
+            streamer.start()
+            try:
+                assert wait_until(lambda: len(mallory.setpoints) >= 5, 10.0), "a pilot sees the setpoints"
+                for _ in range(3):
+                    mallory.attack()
+                assert mallory.sent > 0 and mallory.accepted == [], mallory.accepted[:2]
+            finally:
+                stop.set()
+                streamer.join(5)
+                mallory.close()
         finally:
             assert owner.disarm()["status"] == "accepted"
 

@@ -8,7 +8,7 @@ import threading
 
 import pytest
 from test_steering_service import KEY, service, twin  # noqa: F401  (fixtures)
-from vienatest import Hijacker, open_session, wait_until
+from vienatest import Hijacker, open_session, wait_for_subscriber, wait_until
 
 from viena.services.steering.client import SteeringClient
 from viena.services.steering.model.state import STATE
@@ -26,14 +26,9 @@ def test_a_second_pilot_who_sees_every_sample_steers_nothing(service, session, r
     assert arm["status"] == "accepted", arm
     stop = threading.Event()
 
-    def stream():                                    # puts at 20 Hz, a query now and then
-        k = 0
+    def stream():                                    # puts at 20 Hz: what every subscriber receives
         while not stop.is_set():
-            if k % 10 == 0:
-                owner.setpoint(OWNER_DEG)
-            else:
-                owner.put_setpoint(OWNER_DEG)
-            k += 1
+            owner.put_setpoint(OWNER_DEG)
             stop.wait(0.05)
 
     streamer = threading.Thread(target=stream, daemon=True)
@@ -44,7 +39,8 @@ def test_a_second_pilot_who_sees_every_sample_steers_nothing(service, session, r
         mallory = Hijacker(other)
         streamer.start()
         try:
-            assert wait_until(lambda: len(mallory.setpoints) >= 5, 5.0), "the owner's puts were not seen"
+            assert wait_for_subscriber(session, f"{KEY}/setpoint")
+            assert wait_until(lambda: len(mallory.setpoints) >= 5, 10.0), "the owner's puts were not seen"
             for _ in range(ROUNDS):
                 assert mallory.attack() > 0
         finally:
@@ -53,9 +49,12 @@ def test_a_second_pilot_who_sees_every_sample_steers_nothing(service, session, r
             mallory.close()
             watch.undeclare()
     assert mallory.accepted == [], mallory.accepted[:2]
-    assert len(goals) > 20 and all(g is None or abs(g - OWNER_DEG) < 1e-6 for g in goals), \
+    assert not any(arm["lease"].encode() in raw for raw in mallory.raw)       # nor in any recording
+    wanted = (arm["target_deg"], OWNER_DEG)           # where the arm held it, then the owner's angle
+    assert len(goals) > 20 and all(g is None or min(abs(g - w) for w in wanted) < 1e-6 for g in goals), \
         sorted(set(goals), key=str)
-    assert until(lambda st: st["armed"] and st["owner"] == arm["owner"] and st["trip"] == ""), latest
+    assert until(lambda st: st["armed"] and st["owner"] == arm["owner"] and st["trip"] == ""), \
+        {k: latest.get(k) for k in ("armed", "owner", "trip", "decision")}
     assert owner.setpoint(OWNER_DEG)["status"] in ("accepted", "clamped")     # the owner still steers
     assert owner.disarm()["status"] == "accepted"
     assert mallory.sent >= ROUNDS * 2 * 4 * 5

@@ -140,6 +140,7 @@ def test_whoever_sees_the_owners_setpoints_can_neither_replay_nor_alter_them():
     older = signed({"angle_deg": 2.0, "lease": lease, "seq": seen["seq"] - 1})
     assert "replayed" in env.raw_setpoint(older, 0.0).reason
     assert env.target_deg == pytest.approx(1.0) and env.armed
+    assert env.refused == {"replayed": 2, "not signed": 4}                     # counted by cause for health
 
 
 def test_stale_and_future_stamps_are_rejected():

@@ -80,6 +80,7 @@ class Envelope:
         self.last_seq = -1                # the owner's last signed setpoint taken (replays refused)
         self.tripped = ""                 # why the last trip happened ("" = none since arm)
         self.last: Decision | None = None
+        self.refused: dict[str, int] = {}  # rejected setpoints by cause (REFUSAL_CAUSES), for health
         self._log = DecisionLog()
 
     # -- configuration -----------------------------------------------------------------------
@@ -175,6 +176,9 @@ class Envelope:
         decision = self._judge(request, measured_deg, now_s, wall_ns)
         self.last = decision
         self._log.record(decision, now_s)
+        if decision.status == REJECTED:
+            cause = "malformed" if isinstance(request, BadSetpoint) else refusal_cause(decision.reason)
+            self.refused[cause] = self.refused.get(cause, 0) + 1
         return decision
 
     def _judge(self, request, measured_deg, now, wall_ns) -> Decision:
@@ -276,6 +280,14 @@ class Envelope:
                 target = win_hi if near_lo > win_hi else win_lo
         self.target_deg, self.target_t = target, now
         return target, limits
+
+
+#: what a rejection is counted as: a fixed set, so a client's text never makes a new counter
+REFUSAL_CAUSES = ("absurd", "not armed", "not signed", "replayed", "stale", "stamped", "no position")
+
+
+def refusal_cause(reason: str) -> str:
+    return next((cause for cause in REFUSAL_CAUSES if reason.startswith(cause)), "other")
 
 
 _LIMIT_TEXT = {
