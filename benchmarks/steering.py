@@ -21,6 +21,7 @@ import threading
 import time
 
 from benchmarks.harness import cpu_share, percentile, processes, start_drive_twin, start_router, start_steering
+from viena.services.steering.client import next_seq
 from viena.services.steering.driver import ds402
 from viena.services.steering.model.signing import signed_setpoint
 
@@ -139,7 +140,7 @@ def _run(session, watch: BusWatch, pid: int, args) -> None:
         angle = 0.2 * (k % 2)
         before = watch.frames[-1][2]
         t0 = time.perf_counter()
-        reply = _get(session, "setpoint", signed_setpoint(lease, angle))
+        reply = _get(session, "setpoint", signed_setpoint(lease, angle, seq=next_seq()))
         t1 = time.perf_counter()
         if reply["status"] == "rejected":
             raise RuntimeError(f"setpoint rejected: {reply}")
@@ -156,7 +157,7 @@ def _run(session, watch: BusWatch, pid: int, args) -> None:
 
     def stream():
         while not stop.is_set():
-            session.put(f"{KEY}/setpoint", json.dumps(signed_setpoint(lease, 1.0)))
+            session.put(f"{KEY}/setpoint", json.dumps(signed_setpoint(lease, 1.0, seq=next_seq())))
             stop.wait(0.02)
     streamer = threading.Thread(target=stream, daemon=True)
     streamer.start()
@@ -165,7 +166,7 @@ def _run(session, watch: BusWatch, pid: int, args) -> None:
     streamer.join()
 
     # 3. watchdog: the deadline counts from the last setpoint's RPDO on the bus
-    _get(session, "setpoint", signed_setpoint(lease, 1.0))
+    _get(session, "setpoint", signed_setpoint(lease, 1.0, seq=next_seq()))
     t_last = watch.frames[-1][0]
     t_qs = watch.wait_for(lambda cw, _t: cw == ds402.CW_QUICK_STOP, t_last, 2.0)
     t_off = watch.wait_for(lambda cw, _t: cw == ds402.CW_DISABLE_VOLTAGE, t_last, 2.0)

@@ -1,9 +1,12 @@
 """Who may do what on a secured car: the roles, and zenoh access control built from them.
 
 The router enforces these rules (zenoh `access_control`, default deny) on every client by
-the certificate it presented (common/keystore.py): the certificate's common name is the
-identity, its organizational unit the role. Keys are relative to `viena/<car>/`; `{name}`
-is the identity's own name, which for a device is its unit (gnss0, razor0).
+the certificate it presented (common/keystore.py). zenoh matches a client only by its
+certificate's common name, so each identity's subject is the exact common name of its one
+current certificate (NAME.TAG, unique to that certificate) and its rules are those of the
+role that certificate carries: any other certificate of the name matches nothing and is
+denied everything. Keys are relative to `viena/<car>/`; `{name}` is the identity's name (the
+part of the common name before the dot), which for a device is its unit (gnss0, razor0).
 
 What each word means to the router, for the client holding the role:
 
@@ -91,7 +94,7 @@ class _Policy:
             "key_exprs": [f"{self.root}/{k.format(name=name)}" for k in keys]})
         rule_ids.append(rule_id)
 
-    def add(self, name: str, role: Role) -> None:
+    def add(self, name: str, role: Role, common_name: str) -> None:
         ids: list[str] = []
         r = f"{name}"
         self.allow(ids, f"{r}/publish", ["put", "delete"], "ingress", role.publish, name)
@@ -111,21 +114,22 @@ class _Policy:
                        "ingress", ("alive/**",), name)
             self.allow(ids, f"{r}/liveliness-replies", ["reply"], "egress", ("alive/**",), name)
         ids.append("discovery")
-        self.subjects.append({"id": name, "cert_common_names": [name]})
+        self.subjects.append({"id": name, "cert_common_names": [common_name]})
         self.policies.append({"id": name, "rules": ids, "subjects": [name]})
 
 
-def access_control(car: str, identities: list[tuple[str, str]]) -> dict:
-    """zenoh's `access_control` block for one car: default deny, then each (name, role)
-    allowed what its role says. Unknown roles are skipped (they get nothing)."""
+def access_control(car: str, identities: list[tuple[str, str, str]]) -> dict:
+    """zenoh's `access_control` block for one car: default deny, then each (name, role,
+    common name) allowed what its role says, to the certificate with that common name only.
+    Unknown roles are skipped (they get nothing)."""
     policy = _Policy(f"viena/{car}")
     policy.rules.append({
         "id": "discovery", "permission": "allow", "flows": ["egress"],
         "messages": ["declare_subscriber", "declare_queryable", "liveliness_token"],
         "key_exprs": [f"viena/{car}/**"]})
-    for name, role in identities:
+    for name, role, common_name in identities:
         if role in ROLES:
-            policy.add(name, ROLES[role])
+            policy.add(name, ROLES[role], common_name)
     return {"enabled": True, "default_permission": "deny", "rules": policy.rules,
             "subjects": policy.subjects, "policies": policy.policies}
 

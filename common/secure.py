@@ -4,17 +4,21 @@ A link is secured when its endpoint says so (`tls/host:port`); there is no other
 A client on a `tls/` endpoint must present an identity of the car's key store, checked
 before zenoh sees it, so a bad key is one line naming the file, never a silent fallback
 to an open connection. A router listening on `tls/` demands a certificate from this car's
-CA of every client (mTLS) and applies the access control built from the store.
+CA of every client (mTLS) and applies the access control built from the store's
+certificates and revocation list (never its private keys). zenoh reads access control once,
+when the router starts: a certificate issued or revoked since counts from the next start.
 """
 from __future__ import annotations
 
 import json
+import logging
 
 from viena.common.access import access_control
 from viena.common.keystore import Identity, KeyStore
 
 SECURE_SCHEMES = ("tls/", "quic/")
 LOOPBACK_HOSTS = ("127.", "localhost", "[::1]", "::1")
+log = logging.getLogger("viena.router")
 
 
 def is_secure(endpoint: str) -> bool:
@@ -49,14 +53,19 @@ def secure_client(conf, store: KeyStore, name: str) -> Identity:
 
 def secure_router(conf, store: KeyStore) -> list[Identity]:
     """Listen with the router's certificate, admit only clients with a certificate of this
-    car's CA, and let each do what its role allows (default deny); returns who may connect."""
+    car's CA, and let each do what its certificate's role allows (default deny); returns who
+    is admitted. Each certificate of the store that cannot be used (another CA's, expired,
+    revoked, unknown role, unreadable) is left out with one warning naming the file and why."""
     router = store.router()
-    clients = store.client_identities()
+    clients, skipped = store.client_certificates()
+    for reason in skipped:
+        log.warning("not admitted: %s", reason)
     _tls_common(conf, store)
     _set(conf, "transport/link/tls/listen_certificate", str(router.cert))
     _set(conf, "transport/link/tls/listen_private_key", str(router.key))
     _set(conf, "transport/link/protocols", ["tls", "quic"])
-    _set(conf, "access_control", access_control(store.car, [(i.name, i.role) for i in clients]))
+    _set(conf, "access_control",
+         access_control(store.car, [(i.name, i.role, i.common_name) for i in clients]))
     return clients
 
 

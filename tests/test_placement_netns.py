@@ -7,8 +7,9 @@ profiles' [include] lists, and its state reaches the laptop either way; the lapt
 clients also survive a restart of the Pi's router.
 
 Both run as on the car: TLS with the car's certificates and the router's access control.
-The keys are made on the Pi (`viena keys init --router-host <its address>`); the laptop
-holds only what it runs with (`viena keys export`), in a key store of its own.
+The keys are made in one place (here the Pi's namespace stands in for the trusted
+machine: `viena keys init --router-host <its address>`); the laptop holds only what it
+runs with (`viena keys export`), in a key store of its own.
 """
 from __future__ import annotations
 

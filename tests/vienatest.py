@@ -205,7 +205,8 @@ def signed(payload, lease: str | None = None):
     best) becomes the signed setpoint (model/signing.py) with a fresh seq, keeping its other
     fields (`t`, unknown ones) so the envelope still sees what the test meant. `lease` signs
     a payload without one. Anything that is not such a map comes back as it is."""
-    from viena.services.steering.model.signing import next_seq, setpoint_mac
+    from viena.services.steering.client import next_seq
+    from viena.services.steering.model.signing import setpoint_mac
 
     if not isinstance(payload, dict):
         return payload
@@ -265,14 +266,16 @@ class Hijacker:
 
     def forgeries(self) -> list[dict]:
         """Everything the hijacker can make of what it saw so far."""
-        from viena.services.steering.model.signing import next_seq, signed_setpoint
+        from viena.services.steering.client import next_seq
+        from viena.services.steering.model.signing import signed_setpoint
 
         made: list[dict] = []
         for seen in self.setpoints[-10:]:
             made += [seen, {**seen, "angle_deg": self.angle_deg}, {**seen, "seq": next_seq()},
                      {**seen, "t": time.time_ns(), "seq": next_seq(), "angle_deg": self.angle_deg}]
         for text in sorted(self.texts)[:100]:
-            made += [{"angle_deg": self.angle_deg, "lease": text}, signed_setpoint(text, self.angle_deg)]
+            made += [{"angle_deg": self.angle_deg, "lease": text},
+                     signed_setpoint(text, self.angle_deg, seq=next_seq())]
         return made
 
     def attack(self) -> int:

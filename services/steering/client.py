@@ -16,11 +16,26 @@ import argparse
 import json
 import os
 import sys
+import threading
 import time
 
 from viena.services.steering.model.signing import signed_setpoint
 
 KEY = "viena/{car}/steering/{name}"
+
+
+_seq_lock = threading.Lock()
+_last_seq = 0
+
+
+def next_seq() -> int:
+    """A setpoint counter that grows on every call in this process and across processes run
+    one after another (nanoseconds since 1970, bumped when two calls share one): a client or
+    a one-off `viena-steer --sign` needs no state of its own to keep `seq` growing."""
+    global _last_seq
+    with _seq_lock:
+        _last_seq = max(time.time_ns(), _last_seq + 1)
+        return _last_seq
 
 
 class ConflictingReplies(RuntimeError):
@@ -85,7 +100,7 @@ class SteeringClient:
         for an angle of their own, or send it again."""
         if self.lease is None:
             raise RuntimeError("not armed: arm() first, the lease signs every setpoint")
-        return signed_setpoint(self.lease, angle_deg)
+        return signed_setpoint(self.lease, angle_deg, seq=next_seq())
 
     def setpoint(self, angle_deg: float, timeout_s: float | None = None) -> dict:
         return self.ask("setpoint", self.signed(angle_deg), timeout_s)
@@ -154,7 +169,8 @@ def main(argv=None) -> int:
     add_common_arguments(p)
     args = p.parse_args(argv)
     if args.sign is not None:
-        print(json.dumps(signed_setpoint(args.sign, args.angle_deg, t_ns=time.time_ns() if args.stamp else None)))
+        print(json.dumps(signed_setpoint(args.sign, args.angle_deg, seq=next_seq(),
+                                         t_ns=time.time_ns() if args.stamp else None)))
         return 0
     setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
     try:

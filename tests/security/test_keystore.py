@@ -55,7 +55,7 @@ def test_identities_carry_their_role(fresh):
 def test_nothing_is_overwritten_silently(fresh, capsys):
     before = (fresh.dir / "pilot.key").read_bytes()
     status, _, err = run_keys(capsys, fresh.dir, "issue", "pilot", "pilot")
-    assert status == 2 and "exists; not replaced (--force replaces it)" in err
+    assert status == 2 and "exists; not replaced (--force replaces it and revokes the old certificate)" in err
     status, _, err = run_keys(capsys, fresh.dir, "init")
     assert status == 2 and "a CA already exists" in err
     assert (fresh.dir / "pilot.key").read_bytes() == before
@@ -90,11 +90,26 @@ def test_a_person_is_issued_and_listed(fresh, capsys):
     ("pilot", "Bob", "cannot name an identity"),
     ("pilot", "router", "cannot name an identity"),
     ("pilot", "ca", "cannot name an identity"),
+    ("pilot", "crl", "cannot name an identity"),
     ("pilot", "../x", "cannot name an identity"),
+    ("pilot", "bob.1234", "cannot name an identity"),       # the dot separates the name from its tag
 ])
 def test_bad_issue_requests_are_one_line(fresh, capsys, role, name, why):
     status, out, err = run_keys(capsys, fresh.dir, "issue", role, name)
     assert status == 2 and why in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+@pytest.mark.parametrize("days", ["0", "-1", "3651"])
+def test_days_out_of_range_is_one_line(fresh, capsys, days):
+    status, out, err = run_keys(capsys, fresh.dir, "issue", "observer", "bob", "--days", days)
+    assert status == 2 and out == "" and "Traceback" not in err
+    assert err == f"viena keys: --days {days}: a certificate lasts from 1 to 3650 days\n"
+    assert not (fresh.dir / "bob.pem").exists() and not (fresh.dir / "bob.key").exists()
+
+
+def test_days_at_its_bounds(fresh):
+    assert fresh.issue("observer", "brief", days=1).not_after - dt.datetime.now(dt.UTC) < dt.timedelta(days=1)
+    assert fresh.issue("observer", "long", days=3650).role == "observer"
 
 
 def test_missing_store(tmp_path):
@@ -110,7 +125,8 @@ def test_unknown_identity_lists_what_exists(fresh):
 def test_missing_key_file(fresh):
     (fresh.dir / "pilot.key").unlink()
     with pytest.raises(SecurityError, match=r"pilot\.key: missing"):
-        fresh.identity("pilot")
+        fresh.identity("pilot")             # a process presenting it needs its key ...
+    assert "pilot" in [i.name for i in fresh.client_identities()]     # ... the router does not
 
 
 def test_loose_key_permissions(fresh):
@@ -168,8 +184,10 @@ def test_export_carries_identities_but_never_the_ca_key(fresh, tmp_path, capsys)
     assert status == 2 and not target.exists()                 # unknown name: nothing copied
     status, out, _ = run_keys(capsys, fresh.dir, "export", "estimator", "pilot", "-o", str(target))
     assert status == 0
-    assert sorted(p.name for p in target.iterdir()) == ["ca.pem", "estimator.key", "estimator.pem",
-                                                         "pilot.key", "pilot.pem"]
+    others = sorted(f"{name}.pem" for name in ["router", *STANDARD_IDENTITIES] if name not in ("estimator", "pilot"))
+    others.remove("router.pem")                                # a server, not a client: not exported unasked
+    assert sorted(p.name for p in target.iterdir()) == sorted(
+        ["ca.pem", "crl.pem", "estimator.key", "estimator.pem", "pilot.key", "pilot.pem", *others])
     laptop = KeyStore(target, "elettra")
     assert laptop.identity("estimator").role == "estimator"
     assert stat.S_IMODE((target / "estimator.key").stat().st_mode) == 0o600

@@ -74,3 +74,16 @@ def test_viena_up_refuses_in_one_line_and_starts_nothing(tmp_path):
     assert up.returncode == 1
     assert up.stderr.startswith("viena: profile pi: no keys for car 'elettra'") and up.stderr.count("\n") == 1
     assert not (tmp_path / "run" / "supervisord.pid").exists()
+
+
+def test_the_pi_store_made_as_the_docs_say_starts_the_pi_profile(store, tmp_path):
+    """docs/deployment.md: `viena keys export router gnss0 gnss1 razor0 steering estimator
+    autopilot -o DIR` on the trusted machine is all the Pi needs; no ca.key, no person's key."""
+    from viena.keys import main as keys
+
+    pi = tmp_path / "pi-keys"
+    assert keys(["--keys", str(store.dir), "export", "router", "gnss0", "gnss1", "razor0", "steering",
+                 "estimator", "autopilot", "-o", str(pi)]) == 0
+    assert not (pi / "ca.key").exists() and not (pi / "pilot.key").exists() and (pi / "pilot.pem").exists()
+    out = secure_environment(compose.profile_file("pi"), env_of("pi"), False, False, str(pi))
+    assert out["VIENA_LINK"] == "tls" and out["VIENA_KEYS"] == str(pi.resolve())

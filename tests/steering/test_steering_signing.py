@@ -9,8 +9,9 @@ import struct
 import time
 
 from viena.services.steering.client import main as steer
+from viena.services.steering.client import next_seq
 from viena.services.steering.model.requests import Setpoint, parse_setpoint
-from viena.services.steering.model.signing import next_seq, setpoint_mac, signed_setpoint
+from viena.services.steering.model.signing import setpoint_mac, signed_setpoint
 
 
 def test_the_code_is_the_documented_hmac_of_the_fixed_width_message():
@@ -39,7 +40,7 @@ def test_the_counter_grows_on_every_call():
 
 
 def test_an_angle_in_radians_is_signed_as_sent():
-    request = parse_setpoint(signed_setpoint("L", angle_rad=0.1))
+    request = parse_setpoint(signed_setpoint("L", angle_rad=0.1, seq=1))
     assert isinstance(request, Setpoint) and request.unit == "rad"
     assert request.signed_by("L") == request.mac and request.signed_by("M") != request.mac
 

@@ -25,8 +25,6 @@ from __future__ import annotations
 import hashlib
 import hmac
 import struct
-import threading
-import time
 
 DOMAIN = b"viena.setpoint/1"
 MAC_HEX_DIGITS = 32
@@ -44,30 +42,15 @@ def macs_match(expected: str, given: object) -> bool:
     return isinstance(given, str) and hmac.compare_digest(expected.encode(), given.encode())
 
 
-_seq_lock = threading.Lock()
-_last_seq = 0
-
-
-def next_seq() -> int:
-    """A counter that grows on every call in this process and across processes run one
-    after another (nanoseconds since 1970, bumped when two calls share one): a client or a
-    one-off `viena-steer --sign` needs no state of its own to keep `seq` growing."""
-    global _last_seq
-    with _seq_lock:
-        _last_seq = max(time.time_ns(), _last_seq + 1)
-        return _last_seq
-
-
-def signed_setpoint(lease: str, angle_deg: float | None = None, *, angle_rad: float | None = None,
-                    seq: int | None = None, t_ns: int | None = None) -> dict:
-    """A setpoint payload signed with `lease`: give `angle_deg` or `angle_rad`. `seq`
-    defaults to `next_seq()`. A stamp `t_ns` (ns UTC) is sent only when given: the steering
+def signed_setpoint(lease: str, angle_deg: float | None = None, *, seq: int, angle_rad: float | None = None,
+                    t_ns: int | None = None) -> dict:
+    """A setpoint payload signed with `lease`: give `angle_deg` or `angle_rad`, and the
+    sender's `seq` (`client.next_seq()` keeps one). A stamp `t_ns` (ns UTC) is sent only when given: the steering
     then refuses the setpoint once it is older than `max_age_s`, which holds only where the
     sender's clock agrees with the steering's; `seq` alone already refuses every replay."""
     if (angle_deg is None) == (angle_rad is None):
         raise ValueError("give angle_deg or angle_rad")
     unit, value = ("deg", angle_deg) if angle_rad is None else ("rad", angle_rad)
-    seq = next_seq() if seq is None else seq
     payload = {f"angle_{unit}": value, "seq": seq}
     if t_ns is not None:
         payload["t"] = t_ns
