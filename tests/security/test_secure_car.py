@@ -79,8 +79,9 @@ def test_every_program_runs_with_its_own_certificate(store, car):
 def test_an_observer_cannot_arm_steer_or_calibrate(store, car):
     with session_as(store, car, "observer") as observer:
         client = SteeringClient(observer, timeout_s=1.0)
-        client.lease = "a-lease-the-observer-made-up"
-        for reply in (client.arm(), client.setpoint(5.0), client.ask("calibration", {})):
+        armed = client.arm()
+        client.lease = "a-lease-the-observer-made-up"            # to sign a setpoint with at all
+        for reply in (armed, client.setpoint(5.0), client.ask("calibration", {})):
             assert reply["status"] == "rejected" and "no answer" in reply["reason"]
         state = collect(observer, f"{CAR}/steering/state", 1, timeout=5, decode=STEERING.decode)[0]
         assert state["armed"] is False
