@@ -58,7 +58,7 @@ def parse_payload(data: bytes | bytearray | memoryview, encoding: str | None = N
             raise PayloadError(f"neither JSON text nor msgpack: {exc}") from None
     if not isinstance(value, dict):
         raise PayloadError(f"expected a map, got {type(value).__name__}")
-    if _depth(value, max_depth) > max_depth:
+    if nesting_depth(value, max_depth) > max_depth:
         raise PayloadError(f"nested deeper than {max_depth} levels")
     return value
 
@@ -85,7 +85,7 @@ def _json_depth(data: bytes) -> int:
     return deepest
 
 
-def _depth(value: Any, limit: int) -> int:
+def nesting_depth(value: Any, limit: int) -> int:
     """Nesting depth of maps and lists, counted without recursion (stops past `limit`)."""
     deepest, stack = 0, [(value, 1)]
     while stack:

@@ -3,6 +3,11 @@
 A twin is written as a small state machine (`ByteTwin`) with no sockets in it, so tests can
 drive it directly. `SerialEndpoint` puts one on a TCP port that the unchanged driver opens
 as the pyserial URL `socket://127.0.0.1:PORT`, exactly as it opens `/dev/ttyUSB0` on the car.
+
+Like a serial port, it has one host at a time: whoever opens it while another holds it is
+refused (the connection closed at once, a log line), so no process takes the line over
+from the service; a host that closed its end makes room at once, for its own reconnect.
+On loopback only the twin's own user is served (peers.py).
 """
 from __future__ import annotations
 
@@ -11,6 +16,9 @@ import selectors
 import socket
 import threading
 import time
+
+from viena.common.log import Throttled
+from viena.common.twin.peers import refusal
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +72,9 @@ class SerialEndpoint:
         self.host, self.port = self._server.getsockname()[:2]
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"endpoint-{name}", daemon=True)
+        self._refused = Throttled(log, f"{name}: connection refused")
         self.bytes_sent = 0
+        self.refused = 0                      # connections closed unserved
 
     @property
     def url(self) -> str:
@@ -89,25 +99,12 @@ class SerialEndpoint:
             timeout = 0.05 if client is None else min(0.05, max(0.0, self.twin.next_due(now) - now))
             for key, _ in sel.select(timeout):
                 if key.fileobj is self._server:
-                    conn, _addr = self._server.accept()
-                    if client is not None:          # a new host takes the line over
-                        sel.unregister(client)
-                        client.close()
-                    client = conn
-                    client.setblocking(False)
-                    client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                    sel.register(client, selectors.EVENT_READ)
-                    self.twin.on_connect(time.monotonic())
-                    log.info("%s: host connected", self.name)
-                elif client is not None:
-                    data = self._recv(client)
-                    if data is None:
-                        sel.unregister(client)
-                        client.close()
-                        client = None
-                        log.info("%s: host disconnected", self.name)
-                    else:
-                        self.twin.feed(data, time.monotonic())
+                    client = self._accept(sel, client)
+                elif client is not None and not self._serve(client):
+                    sel.unregister(client)
+                    client.close()
+                    client = None
+                    log.info("%s: host disconnected", self.name)
             if client is not None:
                 out = self.twin.poll(time.monotonic())
                 if out and not self._send(client, out):
@@ -117,6 +114,42 @@ class SerialEndpoint:
         if client is not None:
             client.close()
         sel.close()
+
+    def _accept(self, sel, client: socket.socket | None) -> socket.socket | None:
+        """The host after a connection came: the new one, or (if refused) the one there was."""
+        try:
+            conn, peer = self._server.accept()
+        except BlockingIOError:
+            return client
+        if client is not None and not self._serve(client):      # it closed its end just before
+            sel.unregister(client)
+            client.close()
+            client = None
+            log.info("%s: host disconnected", self.name)
+        why = refusal(conn)
+        if why is None and client is not None:
+            why = "another host holds the line (one at a time, as on a serial port)"
+        if why is not None:
+            conn.close()
+            self.refused += 1
+            self._refused.log(why, f"from {peer[0]}:{peer[1]}")
+            return client
+        conn.setblocking(False)
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sel.register(conn, selectors.EVENT_READ)
+        self.twin.on_connect(time.monotonic())
+        log.info("%s: host connected", self.name)
+        return conn
+
+    def _serve(self, client: socket.socket) -> bool:
+        """What the host wrote, fed to the twin; False once it has closed its end."""
+        while True:
+            data = self._recv(client)
+            if data is None:
+                return False
+            if not data:
+                return True
+            self.twin.feed(data, time.monotonic())
 
     @staticmethod
     def _recv(conn: socket.socket) -> bytes | None:

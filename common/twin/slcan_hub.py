@@ -12,6 +12,10 @@ other open client and the in-process python-can `virtual` channel where simulate
 As on a real bus a sender does not hear its own frame, a closed channel (`C`) neither
 sends nor receives, a listen-only channel (`L`) receives only, and a client set to a
 different bitrate than the bus hears nothing and is heard by no one.
+
+As on a real bus, anyone plugged in may talk: a CAN monitor beside the steering service is
+one more client. Plugged in means, on loopback, a process of the hub's own user
+(peers.py); others are refused, with a log line.
 """
 from __future__ import annotations
 
@@ -22,6 +26,9 @@ import threading
 import time
 
 import can
+
+from viena.common.log import Throttled
+from viena.common.twin.peers import refusal
 
 log = logging.getLogger(__name__)
 
@@ -127,6 +134,8 @@ class SlcanHub:
         self.frames_from_clients = 0
         self.frames_to_clients = 0
         self.frames_dropped = 0
+        self.refused = 0                      # connections closed unserved
+        self._refused = Throttled(log, f"slcan hub {self.port}: connection refused")
 
     @property
     def url(self) -> str:
@@ -181,6 +190,12 @@ class SlcanHub:
         try:
             sock, peer = self._server.accept()
         except BlockingIOError:
+            return
+        why = refusal(sock)
+        if why is not None:
+            sock.close()
+            self.refused += 1
+            self._refused.log(why, f"from {peer[0]}:{peer[1]}")
             return
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.settimeout(0.5)           # a stuck client is dropped, not waited on

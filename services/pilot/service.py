@@ -13,36 +13,38 @@ Keys (relative to viena/<car>/; payloads JSON text or msgpack, replies in the qu
 - `pilot/path`: `viena.pilot.path/1`, the route held, when taken and every 5 s (for
   recordings, plots and maps).
 
-One control thread does everything in order at the setpoint rate: takes the commands the
-zenoh callbacks queued, reads the newest estimator and steering states, asks the model
-(model/pilot.py) for the wheel angle, and streams it to the steering with its own lease
-(SteeringClient). The two state streams (~100 and 50 Hz) are kept by zenoh in one-sample
-ring channels that the thread reads when it needs them: no Python callback per sample,
-which is most of what such a process would otherwise spend (docs/pilot.md#cost).
+One control thread does everything in order at the setpoint rate: takes the routes and
+commands read for it (inbox.py: a reader thread parses them, with size and depth bounds,
+and answers every refusal, so a flood of malformed routes never reaches this thread),
+reads the newest estimator and steering states, asks the model (model/pilot.py) for the
+wheel angle, and streams it to the steering with its own lease (SteeringClient). The two
+state streams (~100 and 50 Hz) are kept by zenoh in one-sample ring channels that the
+thread reads when it needs them: no Python callback per sample, which is most of what such
+a process would otherwise spend (docs/pilot.md#cost).
 When the model says stop (or the steering refuses a setpoint), no more setpoints go out
 and the lease is given back; the steering's watchdog is the last line if this process dies.
-An estop put on steering/estop stops the pilot too; it then needs a new start.
+An estop put on steering/estop stops the pilot too (a flag, not a queued request: no
+flood delays it); it then needs a new start, and a start sent before it is refused.
 """
 from __future__ import annotations
 
 import math
-import queue
 import threading
 import time
 from dataclasses import dataclass
 
 import zenoh
 
-from viena.common.errors import ConfigError, InputError, PayloadError
+from viena.common.errors import ConfigError, InputError
 from viena.common.log import Throttled
-from viena.common.payload import parse_payload
 from viena.common.schema import unpack
-from viena.common.service import Service, query_payload, reply_to, run_service
+from viena.common.service import Service, run_service
 from viena.common.session import zenoh_config
 from viena.common.settings import part, setting
+from viena.services.pilot.inbox import ACCEPTED, CMD, REJECTED, ROUTE, Inbox, Request
 from viena.services.pilot.model.estimate import estimate_of
-from viena.services.pilot.model.pilot import Pilot, PilotSettings
-from viena.services.pilot.model.route import RouteError, parse_route
+from viena.services.pilot.model.pilot import IDLE, Pilot, PilotSettings
+from viena.services.pilot.model.route import RouteError
 from viena.services.pilot.model.safety import SafetySettings
 from viena.services.pilot.model.state import PATH, STATE, path_sample
 from viena.services.pilot.model.tracking import TrackingSettings
@@ -51,7 +53,6 @@ from viena.services.steering.model.state import STATE as STEERING_STATE
 
 #: who this process is on a secured car (a certificate of role `autopilot`, docs/pilot.md)
 IDENTITY = "autopilot"
-ACCEPTED, REJECTED = "accepted", "rejected"
 _STEERING = STEERING_STATE.reader("armed", "owner", "trip")
 #: steering states arriving this soon after the arm may predate it
 ARM_MARGIN_S = 0.1
@@ -97,16 +98,19 @@ class PilotService(Service):
         except ValueError as exc:
             raise ConfigError(f"[pilot]: {exc}") from None
         self.client = SteeringClient(self.session, self.keys.car, timeout_s=s.arm_timeout_s)
-        self._events: queue.Queue = queue.Queue(maxsize=100)
+        self.inbox = Inbox(self.pilot, self.log, self.health, self.stopping)
+        self._estop = threading.Event()                # an estop put came: stop at the next tick
+        self._estop_number = 0                         # and refuse a start that came before it
         self._unanswered_since: float | None = None
-        self._latencies_s: list[float] = []          # estimate's stamp -> setpoint sent
+        self._latencies = Window(self.health, "estimate_to_setpoint_ms")  # estimate's stamp -> setpoint sent
+        self._lateness = Window(self.health, "tick_late_ms")              # a tick's start after its time
         self._state_pub = self.publisher(self.keys.key("pilot", "state"), STATE)
         self._path_pub = self.publisher(self.keys.key("pilot", "path"), PATH)
         self._path_due = math.inf                     # when to publish the route again
-        for name in ("route", "cmd"):
-            key = self.keys.key("pilot", name)
-            self.declare_queryable(key, self._on_query(name, key))
-            self.declare_subscriber(key, self._on_put(name))
+        for kind in (ROUTE, CMD):
+            key = self.keys.key("pilot", kind)
+            self.declare_queryable(key, self.inbox.on_query(kind, key, USAGE[kind]))
+            self.declare_subscriber(key, self.inbox.on_put(kind))
         self._estimates = self.declare_subscriber(self.keys.key(s.estimate_key), zenoh.handlers.RingChannel(1))
         self._steering: tuple | None = None           # (read monotonic, armed, owner, trip)
         self._owner: str | None = None
@@ -114,7 +118,8 @@ class PilotService(Service):
         if s.setpoints_as == "put":
             self._steering_states = self.declare_subscriber(self.keys.key("steering", "state"),
                                                             zenoh.handlers.RingChannel(1))
-        self.declare_subscriber(self.keys.key("steering", "estop"), lambda _s: self._queue(("estop", None, None)))
+        self.declare_subscriber(self.keys.key("steering", "estop"), self._on_estop)
+        self.inbox.start()
         self._thread = threading.Thread(target=self._run, name="pilot", daemon=True)
         self._thread.start()
         self.log.info("pilot ready (%s), idle: send a route on %s", s.tracking.controller,
@@ -125,31 +130,17 @@ class PilotService(Service):
         thread = getattr(self, "_thread", None)
         if thread is not None:
             thread.join(timeout=1.5)
+        inbox = getattr(self, "inbox", None)
+        if inbox is not None:
+            inbox.join(timeout_s=0.3)
         client = getattr(self, "client", None)
         if client is not None:
             client.close()
 
-    # -- zenoh callbacks: never block ---------------------------------------------------------------
-    def _on_query(self, kind: str, own_key: str):
-        def on_query(query: zenoh.Query) -> None:
-            data, encoding = query_payload(query)
-            if str(query.key_expr) != own_key:            # a wildcard query: never a command
-                reply_to(query, {"status": "description", "key": own_key, "usage": USAGE[kind]},
-                            encoding, data, own_key)
-                return
-            self._queue((kind, (data, encoding), query))
-        return on_query
-
-    def _on_put(self, kind: str):
-        def on_put(sample: zenoh.Sample) -> None:
-            self._queue((kind, (sample.payload.to_bytes(), str(sample.encoding)), None))
-        return on_put
-
-    def _queue(self, event) -> None:
-        try:
-            self._events.put_nowait(event)
-        except queue.Full:
-            self.health.error("queue_full")
+    def _on_estop(self, _sample: zenoh.Sample) -> None:
+        """A zenoh callback: never blocks, never fails, whatever else is queued."""
+        self._estop_number = self.inbox.number()
+        self._estop.set()
 
     # -- the control thread ---------------------------------------------------------------------------
     def _run(self) -> None:
@@ -159,6 +150,7 @@ class PilotService(Service):
         seq = 0
         try:
             while not self.stopping.is_set():
+                self._lateness.add(time.monotonic() - next_tick)
                 try:
                     self._step()
                 except Exception:                        # noqa: BLE001 - never leave the wheel to chance
@@ -187,12 +179,12 @@ class PilotService(Service):
         self._read_estimate()
         if self.settings.setpoints_as == "put":
             self._read_steering()
-        while True:
-            try:
-                kind, payload, query = self._events.get_nowait()
-            except queue.Empty:
-                break
-            self._handle(kind, payload, query)
+        self._decide_requests()
+        if self._estop.is_set():
+            self._estop.clear()
+            if self.pilot.mode == "following":
+                self.pilot.stop("estop")
+                self.log.warning("estop: stopped")
         before = self.pilot.mode
         angle_rad = self.pilot.tick(time.time_ns())
         if angle_rad is None:
@@ -253,7 +245,7 @@ class PilotService(Service):
             self._conflict(exc)
             return
         self.health.count("setpoint")
-        self._note_latency()
+        self._latencies.add((time.time_ns() - self.pilot.estimate.t_ns) * 1e-9)
         now = time.monotonic()
         if str(reply.get("reason", "")).startswith("no answer"):
             # a lost answer is not a refusal: keep streaming, until the steering's own
@@ -293,19 +285,10 @@ class PilotService(Service):
             return
         self.client.put_setpoint(angle_deg)
         self.health.count("setpoint")
-        self._note_latency()
-
-    def _note_latency(self) -> None:
-        """From the estimate's stamp to the setpoint made from it sent (or answered, for
-        queries), p50 and p99 over the last 500 setpoints, in health. The stamp is the
-        estimator's clock: on one machine, or machines kept in sync, it is the whole way
-        from the sensors' time to the steering."""
-        self._latencies_s.append((time.time_ns() - self.pilot.estimate.t_ns) * 1e-9)
-        if len(self._latencies_s) >= 500:
-            ordered = sorted(self._latencies_s)
-            self.health.set("estimate_to_setpoint_ms", {"p50": round(ordered[249] * 1e3, 2),
-                                                        "p99": round(ordered[494] * 1e3, 2)})
-            self._latencies_s.clear()
+        # From the estimate's stamp to the setpoint made from it sent (or answered, for
+        # queries). The stamp is the estimator's clock: on one machine, or machines kept in
+        # sync, it is the whole way from the sensors' time to the steering.
+        self._latencies.add((time.time_ns() - self.pilot.estimate.t_ns) * 1e-9)
 
     def _give_back_lease(self) -> None:
         """No more setpoints, then disarm (a lease the steering already dropped is simply
@@ -327,51 +310,51 @@ class PilotService(Service):
         self.session.put(self.keys.key("steering", "estop"), b"{}")
         return False
 
-    # -- commands --------------------------------------------------------------------------------------
-    def _handle(self, kind: str, payload, query) -> None:
-        if kind == "estop":
-            if self.pilot.mode == "following":
-                self.pilot.stop("estop")
-                self.log.warning("estop: stopped")
-            return
-        data, encoding = payload
-        answer = self._route(data, encoding) if kind == "route" else self._command(data, encoding)
-        if answer["status"] == REJECTED:
-            self.health.error(f"{kind}_rejected")
-            self._refusals.log(kind, f"{kind} refused: {answer['reason']}")
-        if query is not None:
-            reply_to(query, answer, encoding, data)
+    # -- requests, read by the inbox ----------------------------------------------------------------
+    def _decide_requests(self) -> None:
+        """Those read since the last tick (a query's answers end when this returns and its
+        last reference goes: not after the arm that a start leads to)."""
+        for request in self.inbox.take():
+            try:
+                self._handle(request)
+            finally:
+                self.inbox.decided()
 
-    def _route(self, data: bytes, encoding: str | None) -> dict:
-        if not data:
-            route = self.pilot.route
-            if route is None:
-                return {"status": REJECTED, "reason": "no route yet"}
-            return {"status": ACCEPTED, "route": route.to_geojson(), "mode": self.pilot.mode}
+    def _handle(self, request: Request) -> None:
+        if request.kind == ROUTE:
+            self._take_route(request)
+        elif request.value == "start":
+            self._start(request)
+        else:
+            self.pilot.stop("stop command")
+            self._give_back_lease()
+            request.answer({"status": ACCEPTED, "mode": self.pilot.mode})
+
+    def _take_route(self, request: Request) -> None:
+        route = request.value
         try:
-            route = parse_route(data, encoding)
             self.pilot.set_route(route)
         except RouteError as exc:
-            return {"status": REJECTED, "reason": str(exc)}
+            self.inbox.refuse(request, str(exc))
+            return
         self.health.count("route")
         self._path_due = 0.0                          # publish it now
         self.log.info("route: %d checkpoints, %.0f m (%s)", len(route), route.length_m, route.form)
-        return {"status": ACCEPTED, "route": route.to_geojson(), "mode": self.pilot.mode}
+        if self.pilot.mode == IDLE:
+            request.answer_accepted()
+        else:
+            request.answer({"status": ACCEPTED, "route": route.to_geojson(), "mode": self.pilot.mode})
 
-    def _command(self, data: bytes, encoding: str | None) -> dict:
-        try:
-            cmd = command_of(data, encoding)
-        except PayloadError as exc:
-            return {"status": REJECTED, "reason": str(exc), "mode": self.pilot.mode}
-        if cmd == "start":
-            why = self.pilot.start(time.time_ns())
-            if why is not None:
-                return {"status": REJECTED, "reason": why, "mode": self.pilot.mode}
-            self.log.info("start: following")
-            return {"status": ACCEPTED, "mode": self.pilot.mode}
-        self.pilot.stop("stop command")
-        self._give_back_lease()
-        return {"status": ACCEPTED, "mode": self.pilot.mode}
+    def _start(self, request: Request) -> None:
+        if request.number < self._estop_number:
+            self.inbox.refuse(request, "an estop came after this start")
+            return
+        why = self.pilot.start(time.time_ns())
+        if why is not None:
+            self.inbox.refuse(request, why)
+            return
+        self.log.info("start: following")
+        request.answer({"status": ACCEPTED, "mode": self.pilot.mode})
 
     def _publish_state(self, seq: int) -> None:
         state = self.pilot.snapshot(time.time_ns(), seq, self.client.lease is not None)
@@ -389,16 +372,20 @@ USAGE = {
 }
 
 
-def command_of(data: bytes, encoding: str | None = None) -> str:
-    """`start` or `stop` from {"cmd": ..} (JSON or msgpack) or the bare word; PayloadError else."""
-    word = bytes(data).strip().strip(b'"').decode("utf-8", "replace").lower()
-    if word in ("start", "stop"):
-        return word
-    obj = parse_payload(data, encoding)
-    cmd = obj.get("cmd")
-    if set(obj) != {"cmd"} or cmd not in ("start", "stop"):
-        raise PayloadError('expected {"cmd": "start"} or {"cmd": "stop"}')
-    return cmd
+class Window:
+    """p50 and p99 of a delay over the last 500 times, set in health (ms) once per 500."""
+
+    def __init__(self, health, name: str, size: int = 500):
+        self._health, self._name, self._size = health, name, size
+        self._values_s: list[float] = []
+
+    def add(self, value_s: float) -> None:
+        self._values_s.append(value_s)
+        if len(self._values_s) >= self._size:
+            ordered = sorted(self._values_s)
+            self._health.set(self._name, {"p50": round(ordered[self._size // 2 - 1] * 1e3, 2),
+                                          "p99": round(ordered[self._size * 99 // 100 - 1] * 1e3, 2)})
+            self._values_s.clear()
 
 
 def main(argv: list[str] | None = None) -> int:

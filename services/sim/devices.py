@@ -10,6 +10,10 @@ Each device has a table in the sim's settings, e.g.
 
 A kind maps to a factory `make(name, table, car, service) -> device`, where a device has
 `.url` (what the driver opens) and `.stop()`. Factories live with their device's simulator.
+
+A port is the device's cable: a serial twin serves one host at a time, and every twin
+only this machine's processes of the sim's own user, or other machines if `host` lets them
+(common/twin/peers.py; services/sim/README.md, "The twins' ports").
 """
 from __future__ import annotations
 

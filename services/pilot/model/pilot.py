@@ -24,6 +24,9 @@ from viena.services.pilot.model.route import Route, RouteError, distance_to_rout
 from viena.services.pilot.model.safety import SafetySettings, estimate_problem, start_problem, tracking_problem
 from viena.services.pilot.model.tracking import TRACKERS, Command, TrackingSettings
 
+#: the mode with no route, or a route not started (a new route leaves the pilot in it)
+IDLE = "idle"
+
 
 @dataclass(frozen=True)
 class PilotSettings:
@@ -42,7 +45,7 @@ class Pilot:
             raise ValueError(f"max_start_offset_m ({safety.max_start_offset_m:g}) must be above 0 and "
                              f"below max_cross_track_m ({safety.max_cross_track_m:g}): a start "
                              f"allowed there would stop at once")
-        self.mode = "idle"
+        self.mode = IDLE
         self.reason: str | None = None
         self.route: Route | None = None
         self.estimate: Estimate | None = None
@@ -57,8 +60,9 @@ class Pilot:
     def set_route(self, route: Route) -> None:
         """Take a new route (not while following: stop first). Refused with RouteError
         when the car is known and too far from it."""
-        if self.mode == "following":
-            raise RouteError("the pilot is following a route: send stop first")
+        why = self.route_problem()
+        if why is not None:
+            raise RouteError(why)
         est = self.estimate
         limit = self.settings.safety.max_route_distance_m
         if est is not None and est.lat_deg is not None and est.lon_deg is not None:
@@ -68,7 +72,14 @@ class Pilot:
                                  f"(at most {limit:.0f} m)")
         self.route = route
         self._path, self._path_origin, self.where, self.command = None, None, None, None
-        self.mode, self.reason = "idle", None
+        self.mode, self.reason = IDLE, None
+
+    def route_problem(self) -> str | None:
+        """Why no route is taken now, whatever it is (read before reading a route: a route
+        sent while following is refused without the cost of reading it)."""
+        if self.mode == "following":
+            return "the pilot is following a route: send stop first"
+        return None
 
     def on_estimate(self, est: Estimate) -> None:
         self.estimate = est

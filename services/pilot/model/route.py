@@ -13,8 +13,12 @@ Accepted forms (docs/pilot.md#routes), as JSON text, msgpack or CSV text:
   flagged final, and nothing may follow it;
 - CSV: one `lat,lon[,speed_mps]` per line; a header line and `#` comments are skipped.
 
-Every refusal is a `RouteError` with one reason naming the point at fault. Nothing here
-knows where the car is: `distance_to_route_m` lets the service check that.
+Every refusal is a `RouteError` with one reason naming the point at fault, the client's
+own text in it cut short and printable. What arrives is bounded before it is read: at most
+MAX_ROUTE_BYTES, nested at most MAX_DEPTH levels (a 200,000-deep `[[[...` is refused in
+0.1 ms, never a RecursionError). Reading a 5,000-point route takes about 20 ms: the service
+does it off its control thread (services/pilot/inbox.py). Nothing here knows where the car
+is: `distance_to_route_m` lets the service check that.
 """
 from __future__ import annotations
 
@@ -27,10 +31,14 @@ import numpy as np
 import pymap3d
 
 from viena.common.errors import SampleError
+from viena.common.payload import nesting_depth
 from viena.common.schema import unpack
+from viena.common.text import printable
 
 #: a route is at most this big on the wire (a 5,000-point GeoJSON is ~200 kB)
 MAX_ROUTE_BYTES = 256 * 1024
+#: the deepest route form, a FeatureCollection's LineString, nests 6 levels of maps and lists
+MAX_DEPTH = 8
 MAX_POINTS = 5000
 #: consecutive points closer than this are the same place
 MIN_SPACING_M = 0.1
@@ -93,20 +101,30 @@ def parse_route(data: bytes | str, encoding: str | None = None) -> Route:
     head = data.lstrip()[:1]
     if encoding and "msgpack" in encoding or (head and head[0] >= 0x80):
         try:
-            obj = unpack(data, "route")
+            obj = unpack(data, "route")             # msgpack's own stack stops at 1024 levels
         except SampleError as exc:
             raise RouteError(str(exc)) from None
-        return route_from_object(obj)
+        return route_from_object(_shallow(obj))
     if head in (b"{", b"["):
         try:
             obj = json.loads(data.decode("utf-8"), parse_constant=float)
+        except RecursionError:                       # the C decoder's own guard, at ~1000 levels
+            raise RouteError(f"nested deeper than {MAX_DEPTH} levels") from None
         except (UnicodeDecodeError, ValueError) as exc:
             raise RouteError(f"not valid JSON: {exc}") from None
-        return route_from_object(obj)
+        return route_from_object(_shallow(obj))
     try:
         return route_from_csv(data.decode("utf-8"))
     except UnicodeDecodeError:
         raise RouteError("neither JSON, msgpack nor CSV text") from None
+
+
+def _shallow(obj):
+    """`obj`, if it nests at most MAX_DEPTH levels: deeper, even repr() of it could recurse
+    past Python's limit, and no route form is that deep."""
+    if nesting_depth(obj, MAX_DEPTH) > MAX_DEPTH:
+        raise RouteError(f"nested deeper than {MAX_DEPTH} levels")
+    return obj
 
 
 def route_from_object(obj) -> Route:
@@ -133,6 +151,8 @@ def route_from_csv(text: str) -> Route:
     rows = [(i, line) for i, line in rows if line and not line.startswith("#")]
     if rows and not _is_number(rows[0][1].split(",")[0]):
         rows = rows[1:]                                   # a header: lat,lon,speed
+    if len(rows) > MAX_POINTS:                            # said before 60,000 lines are converted
+        raise RouteError(f"the route has {len(rows)} points: at most {MAX_POINTS}")
     for i, line in rows:
         cells = [c.strip() for c in line.split(",")]
         if len(cells) not in (2, 3):
@@ -140,7 +160,7 @@ def route_from_csv(text: str) -> Route:
         try:
             values = [float(c) for c in cells]
         except ValueError:
-            raise RouteError(f"line {i}: {line[:40]!r} is not numbers lat,lon[,speed_mps]") from None
+            raise RouteError(f"line {i}: {_shown(line)} is not numbers lat,lon[,speed_mps]") from None
         points.append((values[0], values[1]))
         speeds.append(values[2] if len(values) == 3 else None)
     return checked(points, speeds, "csv", what="line")
@@ -186,7 +206,7 @@ def _geojson(obj: dict) -> Route:
 def _geometry(geometry: dict, speeds) -> Route:
     kind = geometry.get("type")
     if kind not in ("LineString", "MultiPoint"):
-        raise RouteError(f"GeoJSON {kind!r}: a route is a LineString or a MultiPoint")
+        raise RouteError(f"GeoJSON {_shown(kind)}: a route is a LineString or a MultiPoint")
     coords = geometry.get("coordinates")
     if not isinstance(coords, list):
         raise RouteError(f"GeoJSON {kind} without a list of coordinates")
@@ -204,13 +224,16 @@ def _coordinates(coords: list, speeds) -> Route:
     return checked(points, speeds or [None] * len(points), "geojson")
 
 
-def _point_list(items: list) -> Route:
+def _point_list(items) -> Route:
+    if not isinstance(items, list):
+        raise RouteError(f"points must be a list, got {type(items).__name__}")
     points, speeds = [], []
     for i, p in enumerate(items):
         if isinstance(p, dict):
             unknown = set(p) - {"lat", "lon", "speed_mps"}
             if unknown:
-                raise RouteError(f"point {i}: unknown field {sorted(unknown)[0]!r} (expected lat, lon, speed_mps)")
+                raise RouteError(f"point {i}: unknown field {_shown(min(unknown, key=str))} "
+                                 f"(expected lat, lon, speed_mps)")
             if "lat" not in p or "lon" not in p:
                 raise RouteError(f"point {i}: needs lat and lon")
             points.append((p["lat"], p["lon"]))
@@ -239,8 +262,8 @@ def _titans(items) -> Route:
 
 
 def _shown(v) -> str:
-    text = repr(v)
-    return text if len(text) <= 40 else text[:37] + "..."
+    """A client's value as it is shown back in a reason: short and printable."""
+    return printable(repr(v))
 
 
 # -- checking ---------------------------------------------------------------------------------
@@ -261,12 +284,12 @@ def checked(points: list, speeds: list, form: str, what: str = "point") -> Route
         for label, v, limit in (("latitude", lat, 90.0), ("longitude", lon, 180.0)):
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise RouteError(f"{name}: {label} must be a number, got {_shown(v)}")
-            if not math.isfinite(v):
-                raise RouteError(f"{name}: {label} is not finite ({v})")
+            if not _finite(v):
+                raise RouteError(f"{name}: {label} is not finite ({_shown(v)})")
             if not -limit <= v <= limit:
-                raise RouteError(f"{name}: {label} {v} is beyond +-{limit:g} deg")
+                raise RouteError(f"{name}: {label} {_shown(v)} is beyond +-{limit:g} deg")
         if speed is not None and (isinstance(speed, bool) or not isinstance(speed, (int, float))
-                                  or not math.isfinite(speed) or speed < 0):
+                                  or not _finite(speed) or speed < 0):
             raise RouteError(f"{name}: speed must be a finite number >= 0 m/s, got {_shown(speed)}")
         out.append((float(lat), float(lon)))
         out_speeds.append(None if speed is None else float(speed))
@@ -279,6 +302,14 @@ def checked(points: list, speeds: list, form: str, what: str = "point") -> Route
             raise RouteError(f"{what}s {i + first} and {i + first + 1} are {leg / 1000:.1f} km apart: "
                              f"at most {MAX_LEG_M:.0f} m between checkpoints")
     return route
+
+
+def _finite(v: int | float) -> bool:
+    """A finite number, as a float can hold it (JSON's 400-digit integers cannot)."""
+    try:
+        return math.isfinite(v)
+    except OverflowError:
+        return False
 
 
 def distance_to_route_m(route: Route, lat_deg: float, lon_deg: float) -> float:
