@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import threading
@@ -22,6 +23,11 @@ import time
 from viena.services.steering.model.signing import signed_setpoint
 
 KEY = "viena/{car}/steering/{name}"
+#: the router lets one query per client and command key through in this long (the query
+#: limits of compose/zenoh/router.json5, with a margin): a query sent sooner is dropped
+#: there and never answered, so `ask` waits out the rest first
+QUERY_SPACING_S = {"setpoint": 1 / 150}
+ONE_OFF_QUERY_SPACING_S = 1 / 15            # arm, calibration, estop: questions seconds apart
 
 
 _seq_lock = threading.Lock()
@@ -59,6 +65,7 @@ class SteeringClient:
     def __init__(self, session, car: str = "elettra", timeout_s: float = 2.0, name: str | None = None):
         self.session, self.car, self.timeout_s = session, car, timeout_s
         self.name = name                       # who this is, for the steering's log of e-stops
+        self._asked: dict[str, float] = {}     # when each key was last asked (monotonic s)
         self.lease: str | None = None
         self.replier: str | None = None        # the steering service that granted the lease
         self.last_replier: str | None = None
@@ -69,6 +76,11 @@ class SteeringClient:
         question (default: the client's)."""
         import zenoh
 
+        spacing = QUERY_SPACING_S.get(name, ONE_OFF_QUERY_SPACING_S)
+        wait = self._asked.get(name, -math.inf) + spacing - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        self._asked[name] = time.monotonic()
         replies = list(self.session.get(KEY.format(car=self.car, name=name),
                                         payload=json.dumps(payload).encode(),
                                         timeout=self.timeout_s if timeout_s is None else timeout_s,
