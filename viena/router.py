@@ -11,10 +11,17 @@ by the car's CA (mutual TLS) and may do only what its role allows (common/access
 A plain `tcp/` listener reachable from other machines is refused unless `--insecure`
 is given (or VIENA_INSECURE=1, which `viena up --insecure` sets); an insecure router
 says so in its log every minute.
+
+What an outsider can cost it before authenticating is bounded on every tls/ listener (a
+short TLS handshake timeout; a connection that says nothing never reaches zenoh:
+viena/router_guard.py), and what zenoh refuses (access control, the limits of
+router.json5, failed TLS handshakes) is in the log, one line per cause per 10 s
+(viena/router_log.py).
 """
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import sys
@@ -29,6 +36,8 @@ from viena.common.secure import is_loopback, is_secure, secure_router
 from viena.common.session import add_version_flag, check_endpoint, config_endpoints
 from viena.common.signals import stop_on_signals
 from viena.paths import router_config
+from viena.router_guard import DEFER_ACCEPT_S, HANDSHAKE_TIMEOUT_MS, defer_silent_connections, with_handshake_timeout
+from viena.router_log import ZenohLog
 
 log = logging.getLogger("viena.router")
 INSECURE_WARNING_PERIOD_S = 60.0
@@ -53,6 +62,14 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--insecure", action="store_true",
                         help="allow a plain tcp/ listener other machines can reach (no TLS, no "
                              "access control: anyone on that network can steer)")
+    parser.add_argument("--tls-handshake-timeout-ms", type=int, default=HANDSHAKE_TIMEOUT_MS, metavar="MS",
+                        help=f"TLS handshake timeout of every tls/ listener that sets none (zenoh's "
+                             f"endpoint setting tls_handshake_timeout_ms; default {HANDSHAKE_TIMEOUT_MS}, "
+                             f"0: zenoh's 10 s)")
+    parser.add_argument("--defer-accept-s", type=int, default=DEFER_ACCEPT_S, metavar="S",
+                        help=f"on a secured router, a TCP connection reaches zenoh once it sends its "
+                             f"first bytes, or after S seconds (Linux TCP_DEFER_ACCEPT; default "
+                             f"{DEFER_ACCEPT_S}, 0: off)")
     parser.add_argument("--log-level", default="INFO", metavar="LEVEL",
                         help="DEBUG, INFO, WARNING or ERROR (default INFO)")
     if "--version" not in parser._option_string_actions:
@@ -84,6 +101,14 @@ def router_settings(args: argparse.Namespace) -> tuple[Path, list[str] | None, l
     return path or router_config(), ends["listen"], ends["connect"]
 
 
+def bound_handshakes(conf, timeout_ms: int) -> None:
+    """A TLS handshake timeout on every tls/ listener that sets none (router_guard.py)."""
+    listen = config_endpoints(conf, "listen")
+    bounded = [with_handshake_timeout(e, timeout_ms) for e in listen]
+    if bounded != listen:
+        conf.insert_json5("listen/endpoints", json.dumps(bounded))
+
+
 def secure(conf, args: argparse.Namespace) -> str:
     """Secure `conf` as its listeners require; returns what the log should say about it."""
     listen = config_endpoints(conf, "listen")
@@ -108,10 +133,12 @@ def secure(conf, args: argparse.Namespace) -> str:
 def run(args: argparse.Namespace) -> int:
     import zenoh
 
+    zenoh_log = ZenohLog.capture()          # first: zenoh's log can be started once
     setup_logging(args.log_level)
     try:
         path, listen, connect = router_settings(args)
         conf = load_zenoh_config(path, mode="router", listen=listen, connect=connect)
+        bound_handshakes(conf, args.tls_handshake_timeout_ms)
         security = secure(conf, args)
     except ConfigError as exc:
         print(f"viena router: {exc}", file=sys.stderr)
@@ -122,6 +149,12 @@ def run(args: argparse.Namespace) -> int:
     except zenoh.ZError as exc:
         print(f"viena router: cannot start: {str(exc).split(' at ')[0]}", file=sys.stderr)
         return 1
+    zenoh_log.session = session
+    if security.startswith("secured"):
+        deferred = defer_silent_connections(args.defer_accept_s)
+        if deferred:
+            log.info("connections that say nothing wait %d s before zenoh sees them (%s)",
+                     args.defer_accept_s, ", ".join(deferred))
     listening = config_endpoints(conf, "listen") or listen
     log.info("router %s listening on %s (config %s); %s", session.zid(), ", ".join(listening or []),
              path, security)

@@ -58,7 +58,7 @@ def test_huge_and_deep_payloads_get_a_reason_not_a_traceback(service, session):
     for payload, why in ((b'{"arm": "' + b"x" * 100_000 + b'"}', "bytes: at most"),
                          (b"[" * 2000 + b"]" * 2000, "nested deeper"),
                          (msgpack.packb({"a": [[[[[[[[[[1]]]]]]]]]]}), "nested deeper")):
-        for _ in range(50):
+        for _ in range(10):
             data, _ = get(session, "arm", payload)
         reason = (json.loads(data) if data[:1] == b"{" else msgpack.unpackb(data))["reason"]
         assert why in reason, reason
@@ -66,7 +66,7 @@ def test_huge_and_deep_payloads_get_a_reason_not_a_traceback(service, session):
     _, err = proc.communicate(timeout=10)
     assert "Traceback" not in err and "RecursionError" not in err
     refusals = [line for line in err.splitlines() if "refused: arm" in line]
-    assert 1 <= len(refusals) <= 3, refusals                     # once per cause, not 150 times
+    assert 1 <= len(refusals) <= 3, refusals                     # once per cause, not 30 times
 
 
 def test_an_impostor_answering_the_steering_keys_is_caught(service, session, router):
