@@ -14,7 +14,16 @@ import time
 
 import msgpack
 import pytest
-from vienatest import PYTHON, collect, fast_sweeping_twin, steering_on, wait_for_line, wait_for_queryable, wait_until
+from vienatest import (
+    PYTHON,
+    collect,
+    fast_sweeping_twin,
+    open_session,
+    steering_on,
+    wait_for_line,
+    wait_for_queryable,
+    wait_until,
+)
 
 from benchmarks.pilot import loop_route
 from viena.common.geodesy import LocalFrame
@@ -140,8 +149,15 @@ def following(session, car) -> None:
     assert car["pilot"].until(lambda st: st["estimate_age_s"] is not None and st["estimate_age_s"] < 0.1)
     answer = ask(session, "route", north_road_geojson())
     assert answer["status"] == "accepted" and answer["route"]["properties"]["points"] == 41
-    assert ask(session, "cmd", b'{"cmd": "start"}') == {"status": "accepted", "mode": "following"}
-    assert car["steering"].until(lambda st: st["armed"] and st["owner"] is not None, 10.0), car["steering"].value
+    # A start the pilot stopped again before its drive was under way (a setpoint unanswered
+    # within 0.25 s on a starved machine: not what these tests check) is started again, once
+    for _ in range(2):
+        assert ask(session, "cmd", b'{"cmd": "start"}') == {"status": "accepted", "mode": "following"}
+        if car["pilot"].until(lambda st: st["mode"] == "stopped" or (st["armed"] and st["setpoints"] > 5), 10.0) \
+                and car["pilot"].value["mode"] == "following":
+            break
+    assert car["steering"].until(lambda st: st["armed"] and st["owner"] is not None, 10.0), \
+        (car["steering"].value, car["pilot"].value)
     assert car["pilot"].until(lambda st: st["mode"] == "following" and st["armed"] and st["setpoints"] > 5)
     # 0.3 m east of a northbound road: right of it, so it steers left
     assert car["pilot"].until(lambda st: st["wheel_cmd_deg"] > 0 and abs(st["cross_track_m"] + 0.3) < 0.01)
@@ -303,16 +319,17 @@ def test_malformed_and_flooding_routes_are_answered_and_never_stop_a_drive(procs
     big = north_road_geojson(4800.0, 1.0)                                       # 4,801 points, ~200 KB
     done = threading.Event()
 
-    def flood() -> None:
+    def flood(other) -> None:                          # another client, as the flooder was
         while not done.is_set():
-            session.put(f"{CAR}/pilot/route", big)
-    flooder = threading.Thread(target=flood, daemon=True)
-    flooder.start()
-    try:
-        answers = [ask(session, "route", north_road_geojson()) for _ in range(20)]   # each answered
-    finally:
-        done.set()
-        flooder.join()
+            other.put(f"{CAR}/pilot/route", big)
+    with open_session(router) as other:
+        flooder = threading.Thread(target=flood, args=(other,), daemon=True)
+        flooder.start()
+        try:
+            answers = [ask(session, "route", north_road_geojson()) for _ in range(20)]   # each answered
+        finally:
+            done.set()
+            flooder.join()
     assert {a["status"] for a in answers} <= {"accepted", "rejected"}
     assert all(a["status"] == "accepted" or a["reason"].startswith("busy") for a in answers), answers
     # the flood's last routes may be read after the last answer above: this one comes after them
