@@ -130,9 +130,9 @@ class SerialEndpoint:
         if why is None and client is not None:
             why = "another host holds the line (one at a time, as on a serial port)"
         if why is not None:
-            conn.close()
-            self.refused += 1
+            self.refused += 1                 # counted before the peer can see it closed
             self._refused.log(why, f"from {peer[0]}:{peer[1]}")
+            conn.close()
             return client
         conn.setblocking(False)
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)

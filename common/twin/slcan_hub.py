@@ -193,9 +193,9 @@ class SlcanHub:
             return
         why = refusal(sock)
         if why is not None:
-            sock.close()
-            self.refused += 1
+            self.refused += 1                 # counted before the peer can see it closed
             self._refused.log(why, f"from {peer[0]}:{peer[1]}")
+            sock.close()
             return
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.settimeout(0.5)           # a stuck client is dropped, not waited on
