@@ -228,6 +228,11 @@ def _stream(owner, samples: int) -> tuple[list[float], int]:
     times, rejected = [], 0
     for k in range(samples):
         t0 = time.perf_counter()
+        if owner.lease is None:                    # the arm after a rejection failed too: again
+            rejected += 1
+            owner.arm()
+            time.sleep(0.05)
+            continue
         reply = owner.setpoint(0.2 * (k % 2))
         times.append(time.perf_counter() - t0)
         if reply.get("status") == "rejected":
