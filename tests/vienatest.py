@@ -237,6 +237,7 @@ class Hijacker:
         self.setpoints: list[dict] = []
         self.texts: set[str] = set()
         self.raw: list[bytes] = []               # every sample's bytes, as a recording holds them
+        self.goals: list[float | None] = []      # the steering's goal in every state seen meanwhile
         self.accepted: list[dict] = []
         self.sent = 0
         self.sub = session.declare_subscriber(f"{self.prefix}/**", self._on_sample)
@@ -250,8 +251,11 @@ class Hijacker:
             value = parse_payload(self.raw[-1], max_bytes=1 << 20, max_depth=64)
         except PayloadError:
             return
-        if str(sample.key_expr).endswith("/steering/setpoint"):
+        key = str(sample.key_expr)
+        if key.endswith("/steering/setpoint"):
             self.setpoints.append(value)
+        elif key.endswith("/steering/state"):
+            self.goals.append(value.get("goal_deg"))
         self._collect_texts(value)
 
     def _collect_texts(self, value) -> None:
@@ -292,6 +296,12 @@ class Hijacker:
                         self.accepted.append({"sent": payload, "answer": answer})
         self.sent += 2 * len(forgeries)
         return len(forgeries)
+
+    def hijack(self, rounds: int) -> None:
+        """Once the owner's setpoints are seen, `rounds` rounds of attack."""
+        assert wait_until(lambda: len(self.setpoints) >= 5, 10.0), "the owner's setpoint puts were not seen"
+        for _ in range(rounds):
+            assert self.attack() > 0
 
     def close(self) -> None:
         self.sub.undeclare()
