@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -361,17 +362,49 @@ def _value(v) -> str:
     return f"{v:10,.0f}" if abs(v) >= 1000 else f"{v:10.2f}"
 
 
+def _real_drives(args) -> int:
+    from benchmarks import drive_sources, real_drive
+    from benchmarks.estimator_real import bench_drive
+
+    for name in args.fetch or ():
+        print(f"{name}: {drive_sources.fetch(name, args.source_dir)}")
+    if args.fetch:
+        return 0
+    names = real_drive.available() if args.drive == ["all"] else args.drive
+    if not names:
+        print(f"no converted drives in {real_drive.DRIVES_DIR}; get some with --fetch "
+              f"({', '.join(drive_sources.SOURCES)})")
+        return 1
+    for name in names:
+        bench_drive(real_drive.load(name), seeds=range(1, args.seeds + 1), parts=tuple(args.real_parts))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="viena bench estimator", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--duration", type=float, default=300.0, help="simulated drive, s (default 300)")
     parser.add_argument("--live-seconds", type=float, default=20.0, help="how long to watch the service")
     parser.add_argument("--no-live", action="store_true", help="skip the live measurement")
-    parser.add_argument("--seeds", type=int, default=10, help="seeds per coverage and outage case")
+    parser.add_argument("--seeds", type=int, default=10, help="seeds per coverage and outage case "
+                                                               "(real drives: per table, 5 is enough)")
     parser.add_argument("--only", nargs="+", metavar="PART",
                         choices=["accuracy", "coverage", "outages", "timing", "throughput", "live"],
                         help="run only these parts")
+    real = parser.add_argument_group("real drives (benchmarks/estimator_real.py): judged on these first")
+    real.add_argument("--drive", nargs="+", metavar="NAME",
+                      help="bench the estimator on these converted drives ('all': every one there is) "
+                           "instead of the simulated car")
+    real.add_argument("--fetch", nargs="+", metavar="NAME",
+                      help="get and convert these public drives (see benchmarks/drive_sources.py), then stop")
+    real.add_argument("--from", dest="source_dir", type=Path, metavar="DIR",
+                      help="with --fetch: read the drive's files from this clone (or git directory) of its "
+                           "repository instead of downloading them")
+    real.add_argument("--real-parts", nargs="+", default=["wandering", "white", "cases", "outages"],
+                      choices=["wandering", "white", "cases", "outages"], help="with --drive: which tables")
     args = parser.parse_args(argv)
+    if args.fetch or args.drive:
+        return _real_drives(args)
     parts = set(args.only or ["accuracy", "coverage", "outages", "timing", "throughput", "live"])
     if args.no_live:
         parts.discard("live")

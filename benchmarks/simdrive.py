@@ -61,6 +61,9 @@ class Drive:
     gnss_velocity: bool = True          # False: a position-only receiver (NMEA GGA)
     sigma_form: str = "ecef"            # sigmas as "ecef" (ecef_sigma_m), "enu" or "hv"
     second_antenna_m: tuple | None = None  # a second receiver, gnss1, under the same sky (twins)
+    gnss_errors: str = "standalone"     # the GNSS twin's error profile (errors.py): or "gauss_markov"
+    imu_mount_zyx_deg: tuple = (0.0, 0.0, 0.0)   # the board turned in the car, nobody told (twins)
+    imu_errors: str = "car"             # the Razor twin's errors (docs/sensors.md#imu-error-model) or "none"
 
 
 #: Roads for the simulated car: the campus loop, and an open oval (200 m straights, 60 m
@@ -216,10 +219,11 @@ class TwinSensors:
         from viena.services.imu.driver import Frame, Reading
         from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
         from viena.services.imu.model.sample import SampleBuilder
-        from viena.services.imu.simulator import RazorBoard
+        from viena.services.imu.simulator import CAR_RAZOR_ERRORS, NO_ERRORS, RazorBoard
 
         self.drive, self.rng = drive, rng
-        self.board = RazorBoard()
+        errors = CAR_RAZOR_ERRORS if drive.imu_errors == "car" else NO_ERRORS
+        self.board = RazorBoard(mount_zyx_deg=tuple(drive.imu_mount_zyx_deg), errors=errors)
         self.builder = SampleBuilder("imu0", "viena", SampleCalibrator(seed_calibration("viena")))
         self._frame, self._reading = Frame, Reading
         from viena.services.gnss.simulator.errors import CommonErrors
@@ -228,12 +232,13 @@ class TwinSensors:
             return SkyModel(rng, outages=tuple((a, b) for a, b in drive.outages),
                             outage_interval_s=64.0 if drive.random_outages else 0.0)
         common = CommonErrors(rng) if drive.second_antenna_m is not None else None
-        self.solver = TruthSolver(truth_fn, drive.lever_arm_m, errors=GnssErrorModel(rng, common=common),
-                                  sky=sky())
+        profile = drive.gnss_errors
+        self.solver = TruthSolver(truth_fn, drive.lever_arm_m,
+                                  errors=GnssErrorModel(rng, common=common, profile=profile), sky=sky())
         self.second = None
         if drive.second_antenna_m is not None:
             self.second = TruthSolver(truth_fn, drive.second_antenna_m,
-                                      errors=GnssErrorModel(rng, common=common), sky=sky())
+                                      errors=GnssErrorModel(rng, common=common, profile=profile), sky=sky())
         self._header, self._log, self._fix, self._bestxyz = Header, LogMessage, fix_from_bestxyz, bestxyz_of
         self._ids = (MessageId.BESTXYZ, TimeStatus.FINESTEERING)
 

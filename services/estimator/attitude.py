@@ -37,6 +37,14 @@ from viena.services.estimator.madgwick import Madgwick, attitude_from_vectors
 from viena.services.estimator.settings import EstimatorSettings
 
 _IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+GRAVITY = 9.80665
+#: a car stands when its specific force is gravity's size, steady, to this (m/s^2) ...
+STILL_NORM_MPS2 = 0.3
+#: ... otherwise, with its speed unknown, the tilt found may be off by a car's acceleration
+#: over gravity (3 m/s^2: 17 deg; 10 deg is a hard acceleration or a bend at speed)
+MOVING_ALIGN_SIGMA_DEG = 10.0
+#: a moving car with no known speed waits this long (s) for one before aligning anyway
+ALIGN_WAIT_S = 30.0
 
 
 class Attitude:
@@ -74,6 +82,9 @@ class Attitude:
 
     def _realign(self) -> None:
         self.aligned = False
+        self._align_known = True
+        self._align_sq = 0.0
+        self._align_waited = 0.0            # moving, speed unknown: windows thrown away (s)
         self._align = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]  # n, f, w, m, n_mag
         self._align_t0: int | None = None
         self._align_speed = (0.0, 0.0)      # the speed at the first and the last sample
@@ -84,18 +95,27 @@ class Attitude:
         self._realign()
 
     # -- alignment -----------------------------------------------------------------------------
-    def gather(self, t: int, fx, fy, fz, gx, gy, gz, mag, keep_yaw: bool, speed: float = 0.0) -> None:
+    def gather(self, t: int, fx, fy, fz, gx, gy, gz, mag, keep_yaw: bool, speed: float = 0.0,
+               speed_known: bool = True) -> None:
         """Average the specific force (and field, rate) over align_s, then set the attitude;
         `keep_yaw`: a realignment keeps the yaw that the heading filter knew; `speed`: the
         car's (GNSS) speed, when it realigns while driving: the turn's acceleration
         (w x v, as in `update`) and the change of speed over align_s come off the specific
-        force, and the gyro's mean is a turn, not its bias."""
+        force, and the gyro's mean is a turn, not its bias. `speed_known`: the filter's
+        speed is known well (GNSS velocity); else its change is not taken off, and unless
+        the car plainly stood, the tilt found is only as good as a car's acceleration
+        allows (`MOVING_ALIGN_SIGMA_DEG`)."""
         a = self._align
         if self._align_t0 is None:
             self._align_t0 = t
             self._align_speed = (speed, speed)
+            self._align_known = speed_known
         else:
             self._align_speed = (self._align_speed[0], speed)
+            self._align_known = self._align_known and speed_known
+        if a[0] == 0:
+            self._align_sq = 0.0
+        self._align_sq += fx * fx + fy * fy + fz * fz
         a[0] += 1
         fx, fz = fx + gz * speed, fz - gx * speed
         a[1:4] = [a[1] + fx, a[2] + fy, a[3] + fz]
@@ -108,10 +128,25 @@ class Attitude:
             return
         n = a[0]
         v0, v1 = self._align_speed
-        f = (a[1] / n, a[2] / n - (v1 - v0) / span_s, a[3] / n)
+        known = self._align_known
+        f = (a[1] / n, a[2] / n - ((v1 - v0) / span_s if known else 0.0), a[3] / n)
         w = (a[4] / n, a[5] / n, a[6] / n)
         m = (a[7] / a[10], a[8] / a[10], a[9] / a[10]) if a[10] else None
         lim = math.radians(s.max_gyro_bias_dps)
+        # the car stood (or its speed was known and its acceleration came off): 1 deg;
+        # else the mean specific force holds the car's own acceleration, unknown
+        norm = math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2)
+        spread = math.sqrt(max(0.0, self._align_sq / n - (a[1] ** 2 + a[2] ** 2 + a[3] ** 2) / (n * n)))
+        stood = (max(v0, v1) < s.still_speed_mps and known) or (
+            not known and abs(norm - GRAVITY) < STILL_NORM_MPS2 and spread < STILL_NORM_MPS2
+            and math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) < lim)
+        if not (stood or known) and self._align_waited < ALIGN_WAIT_S:
+            # a moving car whose speed nobody knows yet: wait for GNSS's (a car accelerating
+            # at 1.4 m/s^2 would be aligned 8 deg pitched), or align anyway after a while
+            self._align_waited += span_s
+            self._align = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]
+            self._align_t0 = None
+            return
         if max(v0, v1) < s.still_speed_mps and math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) < lim:
             self.gyro_bias = [max(-lim, min(lim, self.gyro_bias[k] + w[k])) for k in range(3)]
         use_mag = m is not None and self.use_mag and self.mag_plausible(m, *f)
@@ -123,7 +158,9 @@ class Attitude:
         self.rot = _rotation(self.att)
         self.mag_heading = use_mag
         self.aligned = True
-        self.tilt_var = [math.radians(1.0) ** 2] * 2
+        self._align_waited = 0.0
+        sigma = 1.0 if stood or known else MOVING_ALIGN_SIGMA_DEG
+        self.tilt_var = [math.radians(sigma) ** 2] * 2
         pitch, roll = tilt_from_specific_force(*f)
         self.log.info("attitude aligned over %d samples: roll %.2f pitch %.2f deg%s", n,
                       math.degrees(roll), math.degrees(pitch),

@@ -13,8 +13,9 @@ from viena.services.estimator.settings import EstimatorSettings
 
 
 class Constraints:
-    def __init__(self, settings: EstimatorSettings, counts: dict):
+    def __init__(self, settings: EstimatorSettings, counts: dict, mount):
         self.counts = counts
+        self.mount = mount                  # the car's axes in the IMU's (mount.py)
         self.nhc, self.nhc_var = settings.nonholonomic, settings.nhc_sigma_mps ** 2
         self.zupt_R = np.eye(3) * settings.zupt_sigma_mps ** 2
         self.interval_ns = int(settings.constraint_interval_s * 1e9)
@@ -32,17 +33,18 @@ class Constraints:
             return H, [-ve, -vn, -vu], self.zupt_R
         if not (self.nhc and heading.valid and attitude.aligned):
             return None
-        r = attitude.rot
+        right, up = self.mount.axes(attitude.rot)
         speed2 = ve * ve + vn * vn + vu * vu
-        # an attitude error turns the constraint: widen it by speed x angle sigma
-        sig2 = self.nhc_var
+        # an attitude error turns the constraint, and so does what is not known of the
+        # IMU's mount: widen it by speed x angle sigma
+        sig2 = self.nhc_var + speed2 * self.mount.var
         R = np.array(((sig2 + speed2 * heading.yaw_var(), 0.0),
                       (0.0, sig2 + speed2 * tilt_right_var)))
         H = np.zeros((2, kf.n))
-        H[0, 3:6] = r[0], r[3], r[6]                      # body x (right) in ENU
-        H[1, 3:6] = r[2], r[5], r[8]                      # body z (up)
+        H[0, 3:6] = right                                 # the car's right axis in ENU
+        H[1, 3:6] = up                                    # its up axis
         self.counts["nhc"] += 1
-        return H, [-(r[0] * ve + r[3] * vn + r[6] * vu), -(r[2] * ve + r[5] * vn + r[8] * vu)], R
+        return H, [-(right[0] * ve + right[1] * vn + right[2] * vu), -(up[0] * ve + up[1] * vn + up[2] * vu)], R
 
     def apply_alone(self, kf, attitude, heading, still: bool, tilt_right_var: float):
         """The constraints on their own, when no fix has carried them lately: the

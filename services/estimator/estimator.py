@@ -33,13 +33,15 @@ from collections.abc import Callable, Mapping
 from viena.common.geodesy import LocalFrame
 from viena.common.settings import from_mapping
 from viena.services.estimator.attitude import Attitude
+from viena.services.estimator.consistency import Consistency
 from viena.services.estimator.constraints import Constraints
 from viena.services.estimator.counters import Counters
-from viena.services.estimator.gnss_update import GnssUpdate
+from viena.services.estimator.gnss_update import POSITION_COURSE_MAX_S, GnssUpdate
 from viena.services.estimator.heading import Heading
 from viena.services.estimator.history import TrajectoryHistory
 from viena.services.estimator.inputs import ImuLimits, Rejected, gnss_fix, imu_sample
 from viena.services.estimator.kalman import Diverged, KalmanNoise, NavKalman
+from viena.services.estimator.mount import MountHint
 from viena.services.estimator.output import build_state
 from viena.services.estimator.settings import EstimatorSettings
 from viena.services.estimator.standstill import Standstill
@@ -69,7 +71,7 @@ class Estimator:
         self._noise = KalmanNoise(
             s.accel_psd, s.accel_bias_walk_psd, s.free_accel_psd, tuple(s.accel_bias_sigma_mps2),
             s.tilt_walk_psd, math.radians(s.tilt_sigma_deg), s.gnss_bias_tau_s,
-            s.gnss_common_fraction)
+            s.gnss_common_fraction, s.gnss_consider_errors)
         self._quiet = (None, None)          # standstill thresholds learnt (kept across resets)
         self.accel_enu = (0.0, 0.0, 0.0)    # the car's acceleration by the IMU, last sample
         self.counters = Counters()
@@ -82,6 +84,10 @@ class Estimator:
                 raise ValueError("origin is [lat_deg, lon_deg, height_m]")
             self.set_origin(LocalFrame(*s.origin), "config")
         self._seq = 0
+        #: how the IMU sits in the car: learnt over the whole drive, kept through resets
+        self.mount = MountHint(s.imu_mount_sigma_deg, self.log)
+        # how the filter judges each source, and itself
+        self.consistency = Consistency(inflate_after_s=0.5 * s.gnss_reset_s)
         self.gnss = GnssUpdate(self)
         self.standstill = None
         self._restart()
@@ -189,14 +195,17 @@ class Estimator:
         """Forget the estimate (not the counters, the origin nor the times): align again."""
         s = self.settings
         self.attitude = Attitude(s, self.counters.counts, self.log)
-        self.heading = Heading(s, self.attitude, self.counters, self.log)
+        self.heading = Heading(s, self.attitude, self.counters, self.log, self.consistency)
         self.kf = NavKalman(self._noise, tilt=True)
         if getattr(self, "standstill", None) is not None:
             self._quiet = self.standstill.thresholds
         self.standstill = Standstill(s, self._quiet)
-        self.constraints = Constraints(s, self.counters.counts)
+        self.constraints = Constraints(s, self.counters.counts, self.mount)
         self._mag = None                    # the last magnetometer reading
-        self.history = TrajectoryHistory(self.timeline.late_ns)
+        # the last second for late fixes, or the span a position-only receiver's course
+        # is taken over (its middle is compared with the yaw then)
+        self.history = TrajectoryHistory(max(self.timeline.late_ns, int(POSITION_COURSE_MAX_S * 1e9)))
+        self.consistency.restart()
         self.gnss.restart()
 
     def reset(self, reason: str) -> None:
@@ -221,6 +230,11 @@ class Estimator:
         and the tilt it found goes to the attitude."""
         self.history.correct(dx[0:3], dx[3:6])
         self.attitude.correct_tilt(*self.kf.take_tilt())
+
+    def tilt_sigma_rad(self) -> float:
+        """How well a fresh alignment knows roll and pitch: the setting, or what the car's
+        unknown acceleration made of it (attitude.py)."""
+        return max(math.radians(self.settings.tilt_sigma_deg), math.sqrt(max(self.attitude.tilt_var)))
 
     def tilt_var(self) -> list[float]:
         """Variance of the tilt about the car's forward and right axes (rad^2): the Kalman
@@ -269,13 +283,19 @@ class Estimator:
             self._mag = mag
 
         if not att.aligned:
-            speed = math.hypot(kx[3], kx[4]) if kf.initialized else 0.0
-            att.gather(t, fx, fy, fz, gx, gy, gz, mag, heading.filter.valid, speed)
+            speed, known = 0.0, False
+            if kf.initialized:
+                speed = math.hypot(kx[3], kx[4])
+                # a GNSS velocity came within the last second (the filter's own variance
+                # grows fast while nothing drives it during an alignment)
+                speed_t = self.gnss.speed_t
+                known = speed_t is not None and 0 <= t - speed_t < 1_000_000_000
+            att.gather(t, fx, fy, fz, gx, gy, gz, mag, heading.filter.valid, speed, known)
             if kf.initialized:
                 if dt_state > 0.0:
                     kf.move(0.0, 0.0, 0.0, dt_state)
                 if att.aligned:             # a new attitude: the filter's tilt starts again
-                    kf.retilt(math.radians(self.settings.tilt_sigma_deg))
+                    kf.retilt(self.tilt_sigma_rad())
                 history.append(t, kf.x, att.yaw)
             return
 

@@ -30,6 +30,7 @@ import math
 import numpy as np
 
 from viena.common.geodesy import LocalFrame
+from viena.services.estimator.admission import Admission
 from viena.services.estimator.attitude import cross, rotate
 from viena.services.estimator.gnss_noise import WhiteShare
 from viena.services.estimator.kalman import Diverged
@@ -42,12 +43,25 @@ IMU_CONTRADICTED_MPS = 10.0
 IMU_CONTRADICTED_FIXES = 2
 #: a receiver's velocity refused this many times in a row: its course is used anyway
 COURSE_AFTER_REFUSALS = 3
-#: a position-only receiver's course is taken over at least this long (s) ...
-POSITION_COURSE_MIN_S = 0.5
-#: ... and at most this long (older positions are dropped)
-POSITION_COURSE_MAX_S = 2.0
+#: a position-only receiver's course is the line through at least this long of its fixes,
+#: and at least POSITION_COURSE_FIXES of them (s) ...
+POSITION_COURSE_S = 1.0
+POSITION_COURSE_FIXES = 3
+#: ... over at most this long (longer: a gap; the trajectory history keeps this much)
+POSITION_COURSE_MAX_S = 2.5
+#: ... used when its speed is this many times its own noise
+CHORD_SIGMAS = 3.0
 #: the largest white share: a receiver is never taken as having no wandering error at all
 MAX_WHITE_SHARE = 0.98
+#: a receiver's positions refused while its velocity agrees are its own doing for this long
+#: (s: a multipath burst lasts up to half a minute) before the filter widens or resets
+POSITION_ALONE_S = 30.0
+#: ... when they are off by less than this (m): a jump of tens of metres is no multipath
+POSITION_ALONE_MAX_M = 10.0
+#: the mount hint learns only while the pitch is known better than this (rad^2: 1 deg)
+MOUNT_TILT_VAR = math.radians(1.0) ** 2
+#: a first fix without velocity: the car may be driving at anything up to 40 m/s (its sigma)
+VEL_UNKNOWN_VAR = 40.0 ** 2
 #: the size of a receiver's wandering error follows its sigmas over this long (s)
 LEVEL_TAU_S = 30.0
 
@@ -74,15 +88,17 @@ class GnssUpdate:
         self.white: dict[str, WhiteShare] = {}  # what is white of each receiver's variance
         self.level: dict[str, tuple] = {}       # each receiver's variance, smoothed, and when
         self.timing = OffsetHint()              # what the residuals say of the IMU's clock
+        self.admission = Admission(s)           # which receivers are in use (admission.py)
         self.restart()
 
     def restart(self) -> None:
         """A new estimate: forget what the old one made of the fixes (not their times)."""
         self.reject_since: int | None = None    # usable fixes failing the gate since
+        self.last_refused_t = 0                 # ... the last of them
         self.contradicted = 0                   # fixes in a row whose velocity the IMU's left far
         self.speed, self.speed_t = math.inf, None   # last GNSS horizontal speed, and its time
         self.vel_refused: dict[str, int] = {}   # each receiver's velocities refused in a row
-        self.positions: dict[str, tuple] = {}   # a position-only receiver's course anchor
+        self.positions: dict[str, list] = {}    # a position-only receiver's recent positions
         self.arm_known = False                  # the position is the body origin's, not an antenna's
         for share in self.white.values():
             share.forget()
@@ -130,16 +146,21 @@ class GnssUpdate:
         if est.frame is None:
             est.set_origin(LocalFrame.at_ecef(fix.ecef_m), "first_fix")
         frame = est.frame
-        timeline = est.timeline
-        imu_mode = timeline.imu_live_at(fix.t)
-        if not imu_mode:
-            self._coast_to(fix.t)
-
         z = frame.enu_of_ecef(fix.ecef_m)
         if fix.enu_sigma_m is not None:
             cov = np.diag(np.square(fix.enu_sigma_m))
         else:
             cov = frame.cov_to_enu(fix.ecef_sigma_m)
+        sig = np.sqrt(cov.diagonal())
+        why = self.admission.admit(fix, sig, z, est.standstill.still)
+        if why is not None:
+            counters.gnss(why)
+            return
+        timeline = est.timeline
+        imu_mode = timeline.imu_live_at(fix.t)
+        if not imu_mode:
+            self._coast_to(fix.t)
+
         lever = self.levers.get(unit, self.lever_default)
         att = est.attitude
         r = att.rot
@@ -160,12 +181,14 @@ class GnssUpdate:
         if share is None:
             share = self.white[unit] = WhiteShare(s.gnss_white_fraction)
         sh, sv = min(MAX_WHITE_SHARE, share.horizontal), min(MAX_WHITE_SHARE, share.vertical)
-        if imu_mode:
-            d = np.array([math.sqrt(sh), math.sqrt(sh), math.sqrt(sv)])
-            Rp = cov * np.outer(d, d)
+        d = np.array([math.sqrt(sh), math.sqrt(sh), math.sqrt(sv)])
+        white_cov = cov * np.outer(d, d)
+        if imu_mode and est.heading.valid:
+            Rp = white_cov
         else:
-            # without the IMU nothing tells the car's motion from the fixes' jumps: the
-            # constant-velocity model would follow every one; the whole sigma is the fix's
+            # without the IMU (or its yaw) nothing tells the car's motion from the fixes'
+            # jumps: the constant-velocity model would follow every one; the whole sigma
+            # is the fix's
             Rp = cov
         var = cov.diagonal()
         # the wandering error's size follows the receiver's sigmas over LEVEL_TAU_S, not
@@ -183,8 +206,11 @@ class GnssUpdate:
             Rp = Rp + np.eye(3) * (lever[0] ** 2 + lever[1] ** 2 + lever[2] ** 2)
 
         kf = est.kf
-        kf.receiver(unit, wander)
-        kf.rescale_receiver(unit, wander)
+        if s.gnss_bias_tau_s > 0:
+            kf.receiver(unit, wander)
+            kf.rescale_receiver(unit, wander)
+        else:
+            Rp = cov + (Rp - white_cov if imu_mode and est.heading.valid else 0.0)
         if not kf.initialized:
             self._initialize(fix, z, Rp, arm, vel, velR, wander)
             return
@@ -238,9 +264,24 @@ class GnssUpdate:
             pseudo = est.constraints.rows(kf, att, est.heading, est.standstill.still, est.tilt_var()[1])
         if pseudo is not None:
             est.constraints.last_t = timeline.t_state
-        pos_ok, vel_ok, dx = kf.update_fix(nu_p, Rp, nu_v, velR, pseudo, s.gate_chi2, unit)
+        pos_ok, vel_ok, dx, d2p, d2v = kf.update_fix(nu_p, Rp, nu_v, velR, pseudo, s.gate_chi2, unit)
         if dx is not None:
             est.corrected(dx)
+        judge = est.consistency
+        judge.seen("position", d2p, 3, s.gate_chi2)
+        # positions refused while the same receiver's velocity agrees: its position alone
+        # is off (a multipath burst, a jump when its satellites change), not the filter
+        alone = (nu_v is not None and vel_ok
+                 and nu_p[0] * nu_p[0] + nu_p[1] * nu_p[1] < POSITION_ALONE_MAX_M ** 2)
+        if judge.refused(unit, "position", pos_ok, fix.t, POSITION_ALONE_S if alone else None):
+            kf.inflate(0, nu_p)
+            counters.counts["inflations"] += 1
+        if nu_v is not None:
+            judge.seen("velocity", d2v, 3, s.gate_chi2)
+            if judge.refused(unit, "velocity", vel_ok, fix.t):
+                kf.inflate(3, nu_v)
+                counters.counts["inflations"] += 1
+        kf.q_scale = judge.q_scale
         if pos_ok:
             counters.gnss_used += 1
         else:
@@ -257,10 +298,16 @@ class GnssUpdate:
             self._start_again(f"the IMU's velocity left GNSS's by more than {IMU_CONTRADICTED_MPS:g} m/s "
                               "at two fixes in a row", fix, z, Rp, arm, vel, velR, wander)
             return
-        if not (pos_ok and (vel_ok or nu_v is None)) and self._disagreement(fix, z, Rp, arm, vel, velR, wander):
+        if not (pos_ok and (vel_ok or nu_v is None)) and self._disagreement(
+                fix, z, Rp, arm, vel, velR, wander, POSITION_ALONE_S if alone else 0.0):
             return
         if vel_ok:
             self.vel_refused[unit] = 0
+            if imu_mode and known_att and est.tilt_var()[1] < MOUNT_TILT_VAR:
+                # only a velocity the filter agrees with, with the pitch known, says how the
+                # IMU sits (not one from a spell of trouble or a fresh alignment, which would
+                # teach the constraint a wrong axis)
+                est.mount.observe(att.rot, vel, att.rate[2], "mag" not in est.heading.source)
             est.heading.course(vel, velR, yaw, est.history, course_var)
         elif nu_v is not None:
             # a velocity refused again and again may be right and the yaw wrong: let the
@@ -271,40 +318,67 @@ class GnssUpdate:
                 course_var += (nu_v[0] * nu_v[0] + nu_v[1] * nu_v[1]) / speed2
                 est.heading.course(vel, velR, yaw, est.history, course_var)
         elif vel is None:
-            self._course_from_positions(fix, z, arm, Rp, course_var)
+            self._course_from_positions(fix, z, arm, white_cov, course_var, imu_mode)
 
-    def _course_from_positions(self, fix, z, arm, Rp, extra_var: float) -> None:
-        """A receiver without velocity: the course of the body origin between this fix and
-        one at least POSITION_COURSE_MIN_S older (the chord of an arc is parallel to its
-        tangent halfway), compared with the yaw halfway."""
+    def _course_from_positions(self, fix, z, arm, white_cov, extra_var: float, imu_mode: bool) -> None:
+        """A receiver without velocity: the body origin's velocity as the straight line
+        through its last POSITION_COURSE_S of fixes (least squares; on an arc the line is
+        parallel to the tangent halfway). Its direction goes to the heading filter, compared
+        with the yaw halfway, when its speed is CHORD_SIGMAS times its own noise (short
+        chords of noisy fixes point anywhere: a single pair did, and turned the yaw round);
+        the velocity itself corrects the Kalman filter's at that time, as a Doppler velocity
+        would, its covariance doubled: the fixes it comes from are also used as positions."""
         unit = fix.unit
-        here = (fix.t, z[0] - arm[0], z[1] - arm[1])
-        anchor = self.positions.get(unit)
-        if anchor is None or fix.t - anchor[0] > POSITION_COURSE_MAX_S * 1e9:
-            self.positions[unit] = here
+        buf = self.positions.setdefault(unit, [])
+        buf.append((fix.t, z[0] - arm[0], z[1] - arm[1], z[2] - arm[2]))
+        span = (fix.t - buf[0][0]) * 1e-9
+        if span < POSITION_COURSE_S or len(buf) < POSITION_COURSE_FIXES:
+            if span > POSITION_COURSE_MAX_S:
+                self.positions[unit] = [buf[-1]]    # a gap: start again
             return
-        dt = (fix.t - anchor[0]) * 1e-9
-        if dt < POSITION_COURSE_MIN_S:
+        self.positions[unit] = []
+        if span > POSITION_COURSE_MAX_S:
             return
-        self.positions[unit] = here
-        mid = self._state_at(fix.t - int(0.5 * dt * 1e9))
+        t = np.array([(b[0] - buf[0][0]) * 1e-9 for b in buf])
+        tm = float(t.mean())
+        dt = t - tm
+        sxx = float(dt @ dt)
+        v = np.array(buf)[:, 1:4].T @ dt / sxx      # E, N, U slopes
+        cov = white_cov / sxx                       # of a slope through fixes: their white part
+        t_mid = buf[0][0] + int(tm * 1e9)
+        mid = self._state_at(t_mid)
         if mid is None:
             return
-        vel = ((here[1] - anchor[1]) / dt, (here[2] - anchor[2]) / dt)
-        cov = 2.0 * Rp[:2, :2] / (dt * dt)          # the white parts of both fixes
-        self.est.heading.course(vel, cov, mid[2], self.est.history, extra_var)
+        est = self.est
+        if imu_mode and est.kf.initialized:
+            nu = [float(v[k] - mid[1][k]) for k in range(3)]
+            _, ok, dx, _, d2 = est.kf.update_fix(None, None, nu, 2.0 * cov, None, self.settings.gate_chi2, unit)
+            if dx is not None:
+                est.corrected(dx)
+            est.consistency.seen("velocity", d2, 3, self.settings.gate_chi2, judges=False)
+            if not ok:
+                est.counters.gnss("velocity_innovation")
+        ve, vn = float(v[0]), float(v[1])
+        if ve * ve + vn * vn < CHORD_SIGMAS ** 2 * float(cov[0, 0] + cov[1, 1]):
+            return                                  # noise, not a direction
+        est.heading.course((ve, vn), cov[:2, :2], mid[2], est.history, extra_var)
 
-    def _disagreement(self, fix, z, Rp, arm, vel, velR, wander) -> bool:
-        """Usable fixes keep failing the innovation test: after gnss_reset_s, believe GNSS.
-        True if it did (position, velocity and yaw start again from this fix).
+    def _disagreement(self, fix, z, Rp, arm, vel, velR, wander, at_least_s: float = 0.0) -> bool:
+        """Usable fixes keep failing the innovation test: after gnss_reset_s (or
+        `at_least_s`, for positions alone), believe GNSS. True if it did (position, velocity
+        and yaw start again from this fix).
 
         A single wild fix is the receiver's fault; seconds of them are ours (a wrong
         velocity, a drift while coasting, a yaw gone wrong) or a jump the receiver really made.
         """
-        if self.reject_since is None:
+        if self.reject_since is None or fix.t - self.last_refused_t > self.est.gnss_timeout_ns:
+            # (refusals before a spell without fixes are not this disagreement: the time
+            # without fixes is no time GNSS disagreed)
             self.reject_since = fix.t
+            self.last_refused_t = fix.t
             return False
-        limit = self.settings.gnss_reset_s
+        self.last_refused_t = fix.t
+        limit = max(self.settings.gnss_reset_s, at_least_s)
         if (fix.t - self.reject_since) * 1e-9 <= limit:
             return False
         self._start_again(f"GNSS disagreed for {limit:g} s", fix, z, Rp, arm, vel, velR, wander)
@@ -347,14 +421,17 @@ class GnssUpdate:
         wandering error (sigmas `wander`) is in the position's error."""
         est = self.est
         if vel is None:
-            vel, velR = (0.0, 0.0, 0.0), np.eye(3) * 25.0       # unknown: a car is below 5 m/s
+            vel, velR = (0.0, 0.0, 0.0), np.eye(3) * VEL_UNKNOWN_VAR       # unknown: a car, below 40 m/s
         t_state = est.timeline.t_state
         dt = 0.0 if t_state is None else max(0.0, (t_state - fix.t) * 1e-9)
         pos = [z[k] - arm[k] + vel[k] * dt for k in range(3)]
         kf = est.kf
         kf.reset()
-        kf.receiver(fix.unit, wander)
+        if self.settings.gnss_bias_tau_s > 0:
+            kf.receiver(fix.unit, wander)
         kf.initialize(pos, Rp, vel, velR, fix.unit)
+        if est.attitude.aligned:
+            kf.retilt(est.tilt_sigma_rad())
         self.arm_known = any(arm) or not any(self.levers.get(fix.unit, self.lever_default))
         est.timeline.catch_up(fix.t)
         est.history.clear()

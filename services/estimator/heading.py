@@ -74,6 +74,7 @@ class HeadingFilter:
         self.propagate()
         e = wrap_angle(innovation)
         s = self.p00 + var
+        self.last_d2 = e * e / s                   # its NIS, for consistency.py
         if gate_chi2 is not None and e * e > gate_chi2 * s:
             return None
         k0, k1 = self.p00 / s, self.p01 / s
@@ -94,8 +95,9 @@ class Heading:
     (bounded by `max_gyro_bias_dps`: a wrong time or a wild course must not teach the gyro
     a bias it cannot have)."""
 
-    def __init__(self, settings, attitude, counters, log):
+    def __init__(self, settings, attitude, counters, log, judge=None):
         self.settings, self.attitude, self.counters, self.log = settings, attitude, counters, log
+        self.judge = judge                  # consistency.py: each correction's NIS
         self.filter = HeadingFilter(settings.gyro_noise_psd, settings.gyro_bias_walk_psd)
         self.max_bias = math.radians(settings.max_gyro_bias_dps)
         self.mag_var = math.radians(settings.mag_yaw_sigma_deg) ** 2
@@ -145,6 +147,14 @@ class Heading:
             if not h.valid:
                 h.set(self.yaw_var())
             corr = h.correct(e, var, s.gate_chi2)
+            if self.judge is not None:
+                self.judge.seen("course", h.last_d2, 1, s.gate_chi2)
+                if self.judge.refused("course", "course", corr is not None):
+                    # courses refused again and again: the yaw is less sure than the filter
+                    # thinks (consistency.py); widen it by the disagreement and take this one
+                    h.p00 += e * e
+                    self.counters.counts["inflations"] += 1
+                    corr = h.correct(e, var, s.gate_chi2)
             if corr is None:
                 self.counters.gnss("course_innovation")
                 return
@@ -176,6 +186,8 @@ class Heading:
         if not h.valid:
             h.set(self.yaw_var())
         corr = h.correct(e, self.mag_var, self.settings.gate_chi2)
+        if self.judge is not None:
+            self.judge.seen("heading", h.last_d2, 1, self.settings.gate_chi2)
         if corr is None:
             self.counters.counts["mag_rejected"] += 1
             return

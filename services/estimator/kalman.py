@@ -56,7 +56,10 @@ class KalmanNoise:
     tilt_psd: float = 1e-7           # rad^2/s: the attitude's tilt random walk
     tilt_sigma0: float = math.radians(0.5)
     gnss_tau_s: float = 600.0        # correlation time of a receiver's error
-    gnss_rho: float = 0.9            # correlation of two receivers' errors (one sky)
+    gnss_rho: float = 0.8            # correlation of two receivers' errors (one sky)
+    #: the receivers' errors as consider states (Schmidt): their uncertainty is in every
+    #: gain and covariance, their estimate is never moved (docs/estimator.md#receiver-errors)
+    gnss_consider: bool = True
     gravity: float = 9.80665
 
 
@@ -76,6 +79,8 @@ class NavKalman:
         self.tilt = tilt
         self.core = N + (2 if tilt else 0)
         self.receivers: dict[str, int] = {}    # unit -> first index of its error block
+        #: the IMU-driven process noise times this (consistency.py: an adaptive Q)
+        self.q_scale = 1.0
         self._sigma: dict[str, tuple] = {}     # unit -> its error's stationary sigmas (E, N, U)
         self.initialized = False
         self._size(self.core)
@@ -228,9 +233,10 @@ class NavKalman:
                 Ft = np.array(((0.0, fu), (-fu, 0.0), (fn, -fe)))[rows]
                 F[3:6][rows, T_] = T * Ft
                 F[0:3][rows, T_] = 0.5 * T * T * Ft
-        q_h = nz.accel_psd if mode == FULL else nz.free_accel_psd
-        q_v = nz.accel_psd if mode != FREE else nz.free_accel_psd
-        a = math.exp(-T / nz.gnss_tau_s)
+        qs = self.q_scale
+        q_h = nz.accel_psd * qs if mode == FULL else nz.free_accel_psd
+        q_v = nz.accel_psd * qs if mode != FREE else nz.free_accel_psd
+        a = math.exp(-T / nz.gnss_tau_s) if nz.gnss_tau_s > 0 else 0.0
         for k in self.receivers.values():
             F[k, k] = F[k + 1, k + 1] = F[k + 2, k + 2] = a
         P = F @ self.P @ F.T
@@ -242,10 +248,10 @@ class NavKalman:
             P[i, i + 3] += q2
             P[i + 3, i] += q2
             P[i + 3, i + 3] += q * T
-            P[i + 6, i + 6] += nz.bias_walk_psd * T
+            P[i + 6, i + 6] += nz.bias_walk_psd * qs * T
         if self.tilt:
-            P[9, 9] += nz.tilt_psd * T
-            P[10, 10] += nz.tilt_psd * T
+            P[9, 9] += nz.tilt_psd * qs * T
+            P[10, 10] += nz.tilt_psd * qs * T
         if self.receivers:
             # the receivers' errors: Q = prior (1 - a^2), so they stay at their size
             units = list(self.receivers)
@@ -289,26 +295,34 @@ class NavKalman:
         """One GNSS fix of `unit` in one update: position (p plus the receiver's error) and
         velocity, each gated on its own (`gate_chi2` is per 3 dof), plus `extra` = (H,
         innovation, R) rows that ride along ungated (the car's pseudo-measurements).
-        Returns (pos_ok, vel_ok, dx)."""
+        Returns (pos_ok, vel_ok, dx, d2_pos, d2_vel): the blocks' NIS (nan when absent)."""
         self.flush()
         k = self.receivers.get(unit)
         PHt, S, nu = self._stack(nu_p, R_p, nu_v, R_v, extra, k)
-        # a sub-vector's Mahalanobis distance is at most the whole's: when the whole passes
-        # one block's gate, every block does (the usual case, one inversion)
-        ok, _, dx = self._gated(PHt, S, nu, gate_chi2)
-        if ok:
-            return nu_p is not None, nu_v is not None, dx
-        j = 0                                    # where the velocity rows start in S
-        if nu_p is not None:
-            if quadratic(inverse_small(S[0:3, 0:3]), nu_p) > gate_chi2:
-                nu_p = None
-            j = 3
-        if nu_v is not None and quadratic(inverse_small(S[j:j + 3, j:j + 3]), nu_v) > gate_chi2:
+        j = 3 if nu_p is not None else 0         # where the velocity rows start in S
+        d2p = quadratic(inverse_small(S[0:3, 0:3]), nu_p) if nu_p is not None else math.nan
+        d2v = quadratic(inverse_small(S[j:j + 3, j:j + 3]), nu_v) if nu_v is not None else math.nan
+        gate = math.inf if gate_chi2 is None else gate_chi2
+        if nu_p is not None and d2p > gate:
+            nu_p = None
+        if nu_v is not None and d2v > gate:
             nu_v = None
         if nu_p is None and nu_v is None and extra is None:
-            return False, False, None
-        PHt, S, nu = self._stack(nu_p, R_p, nu_v, R_v, extra, k)
-        return nu_p is not None, nu_v is not None, self._gated(PHt, S, nu, None)[2]
+            return False, False, None, d2p, d2v
+        if not (d2p > gate or d2v > gate):        # nothing refused: the stack as it is
+            dx = self._gated(PHt, S, nu, None)[2]
+        else:
+            PHt, S, nu = self._stack(nu_p, R_p, nu_v, R_v, extra, k)
+            dx = self._gated(PHt, S, nu, None)[2]
+        return nu_p is not None, nu_v is not None, dx, d2p, d2v
+
+    def inflate(self, first: int, nu) -> None:
+        """The filter refused this block's measurements again and again: it is less sure
+        than it thought. Its covariance grows by the disagreement (nu nu^T; consistency.py)."""
+        self.flush()
+        v = np.asarray(nu, float)
+        sl = slice(first, first + len(v))
+        self.P[sl, sl] += np.outer(v, v)
 
     def position_innovation_cov(self, R_p, unit: str | None = None) -> np.ndarray:
         """S of a position fix of `unit` with covariance R_p, as of now."""
@@ -340,7 +354,11 @@ class NavKalman:
 
     def _gated(self, PHt, S, innovation, gate_chi2):
         """The update proper: d2 = nu^T S^-1 nu; unless gated out, x += K nu and
-        P -= K PHt^T with K = PHt S^-1 (P is symmetrised at a later flush)."""
+        P -= K PHt^T with K = PHt S^-1 (P is symmetrised at a later flush).
+
+        With consider states (the receivers' errors, `gnss_consider`) their rows of K are
+        zero (Schmidt 1966): the gain is no longer the optimal one for the whole state, so
+        the covariance takes the general form P - K PHt^T - PHt K^T + K S K^T."""
         S_inv = _inverse(S)
         nu = np.asarray(innovation, float)
         w = S_inv @ nu
@@ -349,8 +367,15 @@ class NavKalman:
             raise Diverged("innovation is not finite")
         if gate_chi2 is not None and d2 > gate_chi2:
             return False, d2, None
-        dx = (PHt @ w).tolist()
-        self.P = self.P - PHt @ S_inv @ PHt.T
+        if self.receivers and self.noise.gnss_consider:
+            K = PHt @ S_inv
+            K[self.core:, :] = 0.0
+            dx = (K @ nu).tolist()
+            KPH = K @ PHt.T
+            self.P = self.P - KPH - KPH.T + K @ S @ K.T
+        else:
+            dx = (PHt @ w).tolist()
+            self.P = self.P - PHt @ S_inv @ PHt.T
         x = self.x
         for i in range(self.n):
             x[i] += dx[i]

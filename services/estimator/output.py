@@ -98,6 +98,9 @@ def build_state(est, seq: int) -> tuple[dict, list]:
         "counts": dict(counters.counts),
         "last_reset": counters.last_reset,
         "imu_time_offset_hint_s": est.gnss.timing.offset_s,
+        "imu_mount_hint_deg": est.mount.hint_deg(),
+        **est.consistency.report(),
+        "gnss_admission": est.gnss.admission.report(),
     }
     numbers = [*pos, *vel, *bias, *pos_var, *vel_var, *q, *att_var, *att.rate, *att.gyro_bias,
                ee, en, eu, nn, nu, uu, sigma_h]

@@ -49,6 +49,9 @@ class EstimatorSettings:
     constraint_interval_s: float = setting(0.1, "period of the non-holonomic and zero-velocity updates")
     nonholonomic: bool = setting(True, "the car does not slide sideways nor jump")
     nhc_sigma_mps: float = setting(0.1, "sigma of the non-holonomic constraint")
+    imu_mount_sigma_deg: float = setting(3.0, "how far the IMU's axes may be off the car's before GNSS "
+                                              "velocity has shown it (mount.py); 0: the mount is "
+                                              "calibrated, nothing is learnt")
     zupt_sigma_mps: float = setting(0.02, "sigma of a zero-velocity update")
     still_gyro_radps: float = setting(0.0, "standstill: gyro rms below this (0: learnt, 3 x what the "
                                            "first align_s parked show, within 0.01 .. 0.05) ...")
@@ -62,11 +65,26 @@ class EstimatorSettings:
     gnss_vel_latency_s: dict[str, float] = setting(
         {}, "each receiver's velocity latency, unit = s, instead of the fix's vel_latency_s "
             "(receivers that do not send it: NMEA)")
+    admit_hold_s: float = setting(10.0, "a receiver's fixes pass every check this long before it is used "
+                                        "(admission.py; PX4 EKF2's 10 s)")
+    admit_min_sats: int = setting(5, "admission: fewest satellites in the solution (when the fix says; "
+                                     "PX4: 6, the car's OEM4 mostly has 5-7)")
+    admit_max_sigma_h_m: float = setting(10.0, "admission: largest horizontal sigma (PX4: 3 m for a drone's "
+                                               "receiver; the car's OEM4 reports 3-4 m, up to 15)")
+    admit_max_sigma_v_m: float = setting(15.0, "admission: largest vertical sigma")
+    admit_max_speed_sigma_mps: float = setting(2.0, "admission: largest horizontal speed sigma (the car's "
+                                                    "OEM4: 0.6 m/s typical)")
+    admit_max_drift_mps: float = setting(1.0, "admission: while the car stands, the fixes' smoothed motion "
+                                              "and reported speed stay below this (PX4: 0.1 for a u-blox; a "
+                                              "standalone receiver parked in multipath moves more)")
     gnss_reset_s: float = setting(5.0, "good fixes rejected this long: trust GNSS, reinitialise")
     gnss_max_rate_hz: float = setting(10.0, "fixes used per second and receiver; 0 = every fix")
     # what makes GNSS errors correlated
     gnss_bias_tau_s: float = setting(600.0, "correlation time of a receiver's slowly wandering error")
-    gnss_common_fraction: float = setting(0.9, "correlation of two receivers' wandering errors (one sky)")
+    gnss_common_fraction: float = setting(0.8, "correlation of two receivers' wandering errors (one sky; each "
+                                                  "antenna has its own multipath and satellites)")
+    gnss_consider_errors: bool = setting(True, "the receivers' wandering errors widen every gain and "
+                                               "covariance but are never estimated (Schmidt)")
     gnss_white_fraction: float = setting(0.1, "share of a fix's variance taken as white until the "
                                               "fixes show theirs")
     imu_time_sigma_s: float = setting(0.02, "how far the IMU's stamps may be off the GNSS clock, s")

@@ -75,6 +75,12 @@ STATE = Schema("viena.estimator.state/2", {
     "counts": F.map,                      # imu, gnss, imu_gaps, resets, ...
     "last_reset": F.optional(F.str),      # why the filter last reset itself
     "imu_time_offset_hint_s": F.optional(F.float),  # the IMU's time_offset_s the fixes point at
+    # how the filter judges its sources and itself (issue 25; optional: older states lack them)
+    "imu_mount_hint_deg": F.optional(F.vec(2)),     # [yaw, pitch] of the car's forward axis in the IMU's
+    "nis": F.optional(F.map),             # kind -> recent NIS per dimension (1 when consistent)
+    "test_ratio": F.optional(F.map),      # kind -> last NIS over the gate (> 1: refused)
+    "process_noise_scale": F.optional(F.float),     # the adaptive process noise's factor
+    "gnss_admission": F.optional(F.map),  # receiver -> "in use", "probation" or "failing <check>"
 })
 
 MODES_HELP = {
@@ -110,6 +116,15 @@ def monitor_view(state: dict) -> dict[str, str]:
     refused = state.get("time_refused")
     if isinstance(refused, dict) and refused:       # a source sending bad stamps (issue 15)
         cells["refused for time"] = ", ".join(f"{k} {v}" for k, v in sorted(refused.items(), key=str))
+    nis = state.get("nis")
+    if isinstance(nis, dict) and any(number(v) is not None for v in nis.values()):
+        cells["NIS pos/vel/course"] = "/".join(fmt_num(nis.get(k), 1) for k in ("position", "velocity", "course"))
+    admission = state.get("gnss_admission")
+    if isinstance(admission, dict) and any(v != "in use" for v in admission.values()):
+        cells["receivers"] = ", ".join(f"{k} {v}" for k, v in sorted(admission.items(), key=str))
+    mount = vector(state.get("imu_mount_hint_deg"), 2)
+    if mount is not None and max(abs(mount[0]), abs(mount[1])) >= 1.0:
+        cells["IMU mount"] = f"yaw {mount[0]:+.1f}° pitch {mount[1]:+.1f}° against the car"
     hint = number(state.get("imu_time_offset_hint_s"))
     if hint is not None:
         cells["IMU clock"] = (f"stamps {abs(hint) * 1e3:.0f} ms {'late' if hint < 0 else 'early'}: "

@@ -6,6 +6,7 @@ store it in the unit's table of the calibration TOML file that viena-imu loads.
     viena calibrate imu mag --live --seconds 120              # circles, from the running service
     viena calibrate imu time drive.mcap --lever-arm -0.5 1 1.5 # clock against GNSS, from a drive
     viena calibrate imu mount drive.mcap --lever-arm -0.5 1 1.5 # board to body rotation, from a drive
+    viena calibrate imu noise parked.csv --plot allan.png     # Allan figures of a parked recording
     viena calibrate imu show --unit razor0
     viena calibrate imu record out.csv --port /dev/ttyUSB0 --seconds 60
 
@@ -25,13 +26,20 @@ from pathlib import Path
 import numpy as np
 
 from viena.common.errors import ConfigError, InputError, SampleError
-from viena.services.imu import drive_calibration
+from viena.services.imu import drive_calibration, noise_calibration
 from viena.services.imu.calibration_file import DEFAULT_FILE, dumps, load_calibration, load_file, save_calibration
 from viena.services.imu.model import fitting
 from viena.services.imu.model.calibration import FIRMWARES, ImuCalibration, SampleCalibrator, to_table
 from viena.services.imu.model.fitting import FitError
 from viena.services.imu.model.glitch import LISBON_FIELD_T, MagGlitchFilter
-from viena.services.imu.recordings import Recording, from_readings, load_recording, save_recording
+from viena.services.imu.recordings import (
+    PARKED,
+    Recording,
+    from_readings,
+    load_parked,
+    load_recording,
+    save_recording,
+)
 
 DEFAULT_SECONDS = {"accel": 90.0, "gyro": 20.0, "mag": 120.0, "record": 60.0}
 NOMINAL_RATE_HZ = 82.5
@@ -78,6 +86,13 @@ def build_parser() -> argparse.ArgumentParser:
         drive_calibration.add_arguments(sub.add_parser(name, parents=[common, fit], help=what,
                                                        description=drive_calibration.__doc__,
                                                        formatter_class=argparse.RawDescriptionHelpFormatter))
+    n = sub.add_parser("noise", parents=[common, fit], description=noise_calibration.__doc__,
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       help="Allan noise figures (N, B, K, Q) from parked recordings")
+    n.add_argument("recordings", nargs="+", type=Path, metavar="RECORDING.csv",
+                   help="parked recordings of the unit in the car's logger CSV format (several: pooled), "
+                        f"or the car's own by name: {', '.join(PARKED)}")
+    n.add_argument("--plot", type=Path, metavar="PNG", help="also draw the Allan deviation here")
     sub.add_parser("show", parents=[common], help="print the unit's calibration")
     r = sub.add_parser("record", parents=[common, source], help="record frames to CSV")
     r.add_argument("out", type=Path, help="CSV file to write")
@@ -138,19 +153,37 @@ def cmd_mag(args) -> int:
 def cmd_mount(args) -> int:
     previous, how = _previous(args)
     drive = drive_calibration.read_drive(args.recording, args.unit, args.gnss)
-    calibrated, _ = drive_calibration.measure_mount(drive, previous, args.lever_arm)
+    calibrated, _ = drive_calibration.measure_mount(drive, previous, args.lever_arm,
+                                                    drive_calibration.Limits.of(args))
     return _store(args, calibrated, how)
 
 
 def cmd_time(args) -> int:
     previous, how = _previous(args)
     drive = drive_calibration.read_drive(args.recording, args.unit, args.gnss)
-    offset_s, report = drive_calibration.measure_time(drive, previous, args.lever_arm)
+    offset_s, report = drive_calibration.measure_time(drive, previous, args.lever_arm,
+                                                      drive_calibration.Limits.of(args))
     return _store(args, previous.with_time_offset(offset_s, report), how)
 
 
+def cmd_noise(args) -> int:
+    previous, how = _previous(args)
+    figures = noise_calibration.measure_noise([_parked_or_file(p) for p in args.recordings])
+    print("\n".join(noise_calibration.report(figures)))
+    if args.plot:
+        print(f"Allan deviation drawn in {noise_calibration.write_plot(figures, args.plot)}")
+    return _store(args, previous.with_noise(noise_calibration.noise_table(figures)), how)
+
+
+def _parked_or_file(path: Path) -> Recording:
+    """A CSV recording, or one of the car's shipped parked recordings by name (nocurrent, speed_0hz, ...)."""
+    if not path.exists() and str(path) in PARKED:
+        return load_parked(str(path))
+    return load_recording(path)
+
+
 COMMANDS = {"accel": cmd_accel, "gyro": cmd_gyro, "mag": cmd_mag, "mount": cmd_mount, "time": cmd_time,
-            "show": cmd_show, "record": cmd_record}
+            "noise": cmd_noise, "show": cmd_show, "record": cmd_record}
 
 
 # -- fitting from a recording (also used by tests) -------------------------------------------

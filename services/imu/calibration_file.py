@@ -7,6 +7,7 @@ import dataclasses
 import datetime as dt
 import json
 import math
+import numbers
 import os
 import tempfile
 import tomllib
@@ -74,6 +75,8 @@ HEADER = """\
 #   (LSB - eeprom_offset) / eeprom_gain, which the host undoes first.
 # gyro: rate = frame - bias_dps.
 # mag (viena docs/sensors.md#imu-calibration): H_c = c_inv (H_s - offset); tesla = tesla_per_unit * H_c.
+# noise (viena docs/sensors.md#imu-noise-figures): Allan terms per axis in deg/s and g units;
+#   nan: not shown by the recordings.
 """
 
 
@@ -103,9 +106,12 @@ def _key(k: str) -> str:
 def _toml(v) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
+    if isinstance(v, numbers.Integral):
+        return str(int(v))
+    if isinstance(v, numbers.Real):      # numpy's too: its repr is not TOML
+        v = float(v)
+        if math.isnan(v):
+            return "nan"                 # TOML's own: a noise figure the recording did not show
         if not math.isfinite(v):
             raise ValueError(f"{v} cannot be stored")
         return repr(v)

@@ -89,7 +89,10 @@ def run(samples: list, settings: dict, every: int = 4, check_schema: bool = Fals
 
 
 def settings_for(drive: Drive, origin, **extra) -> dict:
-    s = {"origin": list(origin), "gnss_lever_arm_m": {"gnss0": list(drive.lever_arm_m)}}
+    """The drive's origin and lever arm. Receivers are used from their first fix
+    (`admit_hold_s` 0): these tests are about what the filter does with fixes from the
+    start; the admission's 10 s hold has its own (test_estimator_admission.py)."""
+    s = {"origin": list(origin), "gnss_lever_arm_m": {"gnss0": list(drive.lever_arm_m)}, "admit_hold_s": 0.0}
     s.update(extra)
     return s
 

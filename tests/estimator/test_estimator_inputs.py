@@ -137,7 +137,10 @@ def test_a_wild_fix_fails_the_innovation_test(drive):
     assert est.gnss_rejected == {"innovation": 1} and est.gnss_used == used
 
 
-def test_gnss_that_keeps_disagreeing_wins_after_gnss_reset_s(drive):
+def test_gnss_that_keeps_disagreeing_wins_after_half_of_gnss_reset_s_without_a_reset(drive):
+    """A receiver that jumps 30 m and stays there: a burst of refusals is the receiver's,
+    refusals for half of gnss_reset_s are the filter's own doubt (consistency.py): it widens
+    its position block and follows GNSS, attitude and all kept, instead of resetting."""
     est, rest = fresh(drive, until_s=10.0, gnss_reset_s=2.0)
     shifted = []
     for kind, s in rest:
@@ -148,10 +151,23 @@ def test_gnss_that_keeps_disagreeing_wins_after_gnss_reset_s(drive):
     for kind, s in shifted:
         (est.add_imu if kind == "imu" else est.add_gnss)(s)
     state = est.state()
-    assert state["counts"]["resets"] == 1 and "GNSS disagreed" in state["last_reset"]
-    assert 15 <= state["gnss_rejected"]["innovation"] <= 25          # 2 s at 10 Hz
+    assert state["counts"]["resets"] == 0 and state["counts"]["inflations"] >= 1
+    assert 10 <= state["gnss_rejected"]["innovation"] <= 14          # 1 s at 10 Hz
     fix = next(s for k, s in reversed(shifted) if k == "gnss")
     assert np.linalg.norm(np.array(est.frame.enu_of_ecef(fix["ecef_m"])) - state["enu_m"]) < 5.0
+
+
+def test_gnss_that_disagrees_for_gnss_reset_s_before_any_widening_wins_by_a_reset(drive):
+    """The reset stays the last resort: with gnss_reset_s shorter than the three refusals a
+    widening waits for, position, velocity and attitude start again from GNSS."""
+    est, rest = fresh(drive, until_s=10.0, gnss_reset_s=0.15)
+    for kind, s in rest:
+        if kind == "gnss":
+            s = copy.deepcopy(s)
+            s["ecef_m"] = [s["ecef_m"][0] + 30.0, *s["ecef_m"][1:]]
+        (est.add_imu if kind == "imu" else est.add_gnss)(s)
+    state = est.state()
+    assert state["counts"]["resets"] >= 1 and "GNSS disagreed" in state["last_reset"]
 
 
 @pytest.mark.parametrize("rate, expected", [(10.0, 0.5), (0.0, 1.0), (20.0, 1.0)])

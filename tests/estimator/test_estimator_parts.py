@@ -52,11 +52,11 @@ def test_kalman_fix_update_equals_two_sequential_updates():
         kf.P = kf.P + 0.05 * (m @ m.T)
     Rp, Rv = np.eye(3) * 2.0, np.eye(3) * 0.1
     nu_p, nu_v = [0.5, -0.3, 0.2], [0.05, 0.1, -0.02]
-    ok_p, ok_v, _ = a.update_fix(nu_p, Rp, nu_v, Rv, gate_chi2=16.27)
+    ok_p, ok_v, _, d2p, d2v = a.update_fix(nu_p, Rp, nu_v, Rv, gate_chi2=16.27)
     b.update_states(0, nu_p, Rp)
     v = b.x[3:6]
     b.update_states(3, [1.0 + nu_v[0] - v[0], nu_v[1] - v[1], nu_v[2] - v[2]], Rv)
-    assert ok_p and ok_v
+    assert ok_p and ok_v and 0.0 < d2p < 16.27 and 0.0 < d2v < 16.27
     np.testing.assert_allclose(a.x, b.x, atol=1e-9)
     np.testing.assert_allclose(a.P, b.P, atol=1e-9)
 
@@ -64,9 +64,11 @@ def test_kalman_fix_update_equals_two_sequential_updates():
 def test_kalman_fix_update_gates_each_block_on_its_own():
     kf = NavKalman()
     kf.initialize([0.0, 0.0, 0.0], np.eye(3), [0.0, 0.0, 0.0], np.eye(3) * 0.01)
-    ok_p, ok_v, dx = kf.update_fix([0.5, 0.5, 0.5], np.eye(3), [3.0, 0.0, 0.0], np.eye(3) * 0.01,
-                                   gate_chi2=16.27)
+    ok_p, ok_v, dx, d2p, d2v = kf.update_fix([0.5, 0.5, 0.5], np.eye(3), [3.0, 0.0, 0.0], np.eye(3) * 0.01,
+                                             gate_chi2=16.27)
     assert ok_p and not ok_v and dx[0] == pytest.approx(0.25, abs=0.01)
+    # each block's NIS comes back, the refused one's too: consistency.py judges by them
+    assert d2p == pytest.approx(3 * 0.25 / 2.0) and d2v == pytest.approx(9.0 / 0.02)
 
 
 def test_kalman_coasting_grows_the_covariance_and_a_blow_up_is_divergence():

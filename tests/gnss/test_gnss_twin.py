@@ -1,6 +1,7 @@
 """The NovAtel and NMEA twins, driven by hand on a synthetic clock: responses in the
 receiver's format, logs at their triggers, time-correlated noise of the error budget's size
-(docs/sensors.md#gnss-error-budget), outages, lever arms."""
+(docs/sensors.md#gnss-error-budget; what the standalone profile adds to it:
+test_gnss_twin_errors.py), outages, lever arms."""
 from __future__ import annotations
 
 import struct
@@ -185,20 +186,26 @@ def test_a_new_connection_resets_the_port_like_a_break():
 # -- solutions -------------------------------------------------------------------------
 
 
-def test_noise_is_seed_table_sized_about_1_8_m_cep():
+@pytest.mark.parametrize("profile", ["gauss_markov", "standalone"])
+def test_noise_is_seed_table_sized_about_1_8_m_cep(profile):
     errors = []
     for seed in range(300):
-        model = GnssErrorModel(np.random.default_rng(seed), cep_m=1.8)
+        model = GnssErrorModel(np.random.default_rng(seed), cep_m=1.8, profile=profile)
         pos, _ = model.step(0.0)
         errors.append(np.hypot(pos[0], pos[1]))
     assert np.median(errors) == pytest.approx(1.8, rel=0.12)
-    sigma = GnssErrorModel(np.random.default_rng(0)).sigma_enu
-    assert sigma[0] * CEP_PER_SIGMA == pytest.approx(1.8)
+    sigma = GnssErrorModel(np.random.default_rng(0), profile=profile).sigma_enu
+    if profile == "gauss_markov":       # a Gaussian: the sigma is the CEP's
+        assert sigma[0] * CEP_PER_SIGMA == pytest.approx(1.8)
+    else:                               # heavier tails: a larger RMS for the same CEP
+        assert sigma[0] * CEP_PER_SIGMA == pytest.approx(1.8, rel=0.1) and sigma[0] * CEP_PER_SIGMA > 1.8
     assert sigma[2] > sigma[0]                                    # vertical is worse
 
 
 def test_noise_is_time_correlated():
-    model = GnssErrorModel(np.random.default_rng(4))
+    """The wander alone (the standalone profile adds steps and outliers:
+    test_gnss_twin_errors.py)."""
+    model = GnssErrorModel(np.random.default_rng(4), profile="gauss_markov")
     track = np.array([model.step(0.05 * k)[0] for k in range(200)])
     steps = np.linalg.norm(np.diff(track, axis=0), axis=1)
     assert np.max(steps) < 0.5                                    # no jumps between epochs

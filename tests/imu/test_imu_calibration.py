@@ -20,7 +20,7 @@ from viena.services.imu.model.calibration import (
 )
 from viena.services.imu.model.fitting import FitError
 from viena.services.imu.recordings import save_recording
-from viena.services.imu.simulator import RazorBoard, RazorTwin
+from viena.services.imu.simulator import NO_ERRORS, RazorBoard, RazorTwin
 from viena.services.imu.simulator.scenarios import record_twin, six_poses, still, tumbling, turning
 
 # the default magnetometer calibration as the guide prints it (docs/sensors.md#default-calibration)
@@ -34,7 +34,10 @@ NOMINAL_EEPROM = ImuCalibration(eeprom_gain_lsb_per_g=(256.0,) * 3, eeprom_offse
 
 
 def twin(seed: int, **board) -> RazorTwin:
-    return RazorTwin(None, RazorBoard(**board), boot_s=0.1, seed=seed)
+    """A board whose chips are exactly as declared: without the twin's per-run draws (turn-on
+    bias, scale factor, misalignment: docs/sensors.md#imu-error-model), which a fit takes in
+    as part of what it measures, as it would on the car."""
+    return RazorTwin(None, RazorBoard(**{"errors": NO_ERRORS, **board}), boot_s=0.1, seed=seed)
 
 
 # -- the default calibration's figures (docs/sensors.md#default-calibration) ---------------------

@@ -11,13 +11,13 @@ from viena.services.imu.driver import Frame, Reading
 from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
 from viena.services.imu.model.sample import SAMPLE, SampleBuilder
 from viena.services.imu.recordings import load_recording
-from viena.services.imu.simulator import RazorAhrsTwin, RazorBoard, RazorReplayTwin, RazorTwin, make_twin
+from viena.services.imu.simulator import NO_ERRORS, RazorAhrsTwin, RazorBoard, RazorReplayTwin, RazorTwin, make_twin
 from viena.services.imu.simulator.scenarios import fixed_truth
 
 
 @pytest.mark.slow  # the commands record for 4 s
 def test_record_and_fit_from_a_device_port(tmp_path, capsys):
-    board = RazorBoard(gyro_bias_dps=(0.25, -0.15, 0.05))
+    board = RazorBoard(gyro_bias_dps=(0.25, -0.15, 0.05), errors=NO_ERRORS)   # no drawn turn-on bias on top
     twin = RazorTwin(lambda: fixed_truth(gyro=(0, 0, 0)), board, boot_s=0.1, rate_hz=300.0)
     endpoint = SerialEndpoint(twin).start()
     out = tmp_path / "still.csv"

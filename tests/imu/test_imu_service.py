@@ -13,7 +13,7 @@ from viena.common.health import HEALTH
 from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.imu.driver import encode_frame
 from viena.services.imu.model.sample import SAMPLE
-from viena.services.imu.simulator import RazorAhrsTwin, RazorTwin
+from viena.services.imu.simulator import NO_ERRORS, RazorAhrsTwin, RazorBoard, RazorTwin
 from viena.services.imu.simulator.scenarios import fixed_truth
 
 pytestmark = pytest.mark.slow  # the service as a process
@@ -50,7 +50,8 @@ def spawn(procs, *args):
 
 def test_service_publishes_good_frames_only_and_survives_the_device_going_away(router, session, procs, tmp_path):
     truth = fixed_truth(yaw=0.5, gyro=(0.0, 0.0, 0.2))
-    twin = RazorTwin(lambda: truth, boot_s=0.3, seed=11, line_errors=0.1, keep_sent=5000)
+    twin = RazorTwin(lambda: truth, RazorBoard(errors=NO_ERRORS), boot_s=0.3, seed=11, line_errors=0.1,
+                     keep_sent=5000)            # the board as calibrated: no per-run errors
     endpoint = SerialEndpoint(twin).start()
     samples = Collector(session, f"{KEY}/sample", SAMPLE)
     health = Collector(session, f"{KEY}/health", HEALTH)
@@ -97,7 +98,7 @@ def test_service_publishes_good_frames_only_and_survives_the_device_going_away(r
 
 
 def test_service_reads_the_stock_firmware_and_picks_up_a_new_calibration(router, session, procs, tmp_path):
-    twin = RazorAhrsTwin(lambda: fixed_truth(gyro=(0, 0, 0)), boot_s=0.2)
+    twin = RazorAhrsTwin(lambda: fixed_truth(gyro=(0, 0, 0)), RazorBoard(errors=NO_ERRORS), boot_s=0.2)   # as calibrated
     endpoint = SerialEndpoint(twin).start()
     samples = Collector(session, f"{KEY}/sample", SAMPLE)
     health = Collector(session, f"{KEY}/health", HEALTH)

@@ -7,7 +7,7 @@ import pytest
 from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.imu.driver import Razor, encode_frame
 from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
-from viena.services.imu.simulator import BANNER, RazorTwin
+from viena.services.imu.simulator import BANNER, NO_ERRORS, RazorBoard, RazorTwin
 from viena.services.imu.simulator.scenarios import fixed_truth
 
 pytestmark = pytest.mark.slow  # the twin boots and streams over a socket in real time
@@ -21,7 +21,8 @@ def read_n(url: str, n: int, **kwargs):
 
 def test_twin_boots_then_streams_what_the_car_feels():
     truth = fixed_truth(yaw=0.8, pitch=0.05, roll=-0.1, gyro=(0.01, -0.02, 0.3))
-    twin = RazorTwin(lambda: truth, boot_s=0.3, seed=3, rate_hz=300.0)   # 60 frames in 0.2 s
+    # the default board without its per-run errors (docs/sensors.md#imu-error-model): its chips as calibrated
+    twin = RazorTwin(lambda: truth, RazorBoard(errors=NO_ERRORS), boot_s=0.3, seed=3, rate_hz=300.0)   # 60 frames in 0.2 s
     endpoint = SerialEndpoint(twin).start()
     try:
         readings, text, stats = read_n(endpoint.url, 60)

@@ -80,6 +80,8 @@ class Fix(NamedTuple):
     #: the sigmas along East, North, Up when the fix gave them so (enu_sigma_m, or
     #: sigma_h_m and sigma_v_m): better than ECEF ones, which lose the cross terms
     enu_sigma_m: tuple[float, float, float] | None = None
+    #: satellites in the solution, when the source says (estimator's admission checks)
+    sats_used: int | None = None
 
     @property
     def usable(self) -> bool:
@@ -99,16 +101,16 @@ class Fix(NamedTuple):
 #: the fields a Fix is read from; a source may leave out those with a default here
 #: (and the optional ones: no velocity), e.g. a receiver with no statuses beyond `valid`;
 #: the sigmas may come along ECEF axes, along ENU, or as horizontal and vertical
-_FIX_FIELDS = FIX.reader(*Fix._fields[:-1], "enu_sigma_m", "sigma_h_m", "sigma_v_m", defaults={
+_FIX_FIELDS = FIX.reader(*Fix._fields[:-2], "enu_sigma_m", "sigma_h_m", "sigma_v_m", "sats_used", defaults={
     "unit": "gnss", "pos_status": SOL_COMPUTED, "vel_status": SOL_COMPUTED, "vel_type": "",
-    "vel_latency_s": 0.0, "ecef_sigma_m": None})
+    "vel_latency_s": 0.0, "ecef_sigma_m": None, "sats_used": None})
 
 
 def read_fix(sample) -> Fix:
     """The Fix in a decoded sample from any source; a FieldError (a SampleError) names
     the field that is missing or wrong."""
     (t, unit, valid, status, ecef, sigma, vel, vel_sigma, vel_status, vel_type, latency,
-     enu_sigma, sigma_h, sigma_v) = _FIX_FIELDS(sample)
+     enu_sigma, sigma_h, sigma_v, sats) = _FIX_FIELDS(sample)
     if enu_sigma is None and (sigma_h is None) != (sigma_v is None):
         name = "sigma_v_m" if sigma_v is None else "sigma_h_m"
         raise FieldError(f"{FIX.name}: missing field {name!r} (sigma_h_m and sigma_v_m come "
@@ -120,7 +122,7 @@ def read_fix(sample) -> Fix:
                          f"sigma_h_m and sigma_v_m)", "ecef_sigma_m")
     return Fix(t, unit, valid, status, tuple(ecef), None if sigma is None else tuple(sigma),
                None if vel is None else tuple(vel), None if vel_sigma is None else tuple(vel_sigma),
-               vel_status, vel_type, latency, None if enu_sigma is None else tuple(enu_sigma))
+               vel_status, vel_type, latency, None if enu_sigma is None else tuple(enu_sigma), sats)
 
 
 def monitor_view(fix: dict) -> dict[str, str]:

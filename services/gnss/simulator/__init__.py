@@ -10,7 +10,10 @@ The sim builds them from its settings (``[sim.<name>]`` tables, see ``TWIN_SETTI
     replay = ""                      # "" live from truth; "drive" = the 2016 drive; or a CSV
 
 All live twins of one simulated car share one sky (`CommonErrors`: satellite clock, orbit
-and atmosphere errors), drawn from the sim's seed; each keeps its own multipath and noise.
+and atmosphere errors), drawn from the sim's seed; each keeps its own multipath, noise and
+satellite selection. Their errors are a standalone receiver's (errors.py, profile
+"standalone": steps when the satellites change, multipath bursts, heavy tails), not the
+estimator's own model.
 """
 from __future__ import annotations
 

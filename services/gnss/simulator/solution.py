@@ -2,7 +2,8 @@
 
 Both twins (NovAtel and NMEA) turn a `Solution` into their own bytes, so what a receiver
 computes is written once: `TruthSolver` adds the error model to the simulated car's truth
-at the antenna's lever arm; the drive replay (replay.py) reads the car's 2016 recording.
+at the antenna's lever arm, with the sigmas the model says the receiver reports at that
+epoch; the drive replay (replay.py) reads the car's 2016 recording.
 """
 from __future__ import annotations
 
@@ -131,11 +132,11 @@ class TruthSolver:
         if self._t0_ms is None:
             self._t0_ms = gps_ms
         t_s = (gps_ms - self._t0_ms) / 1000.0
-        err_pos, err_vel = self.errors.step(t_s, gps_ms)
+        truth = self.truth()
+        err_pos, err_vel = self.errors.step(t_s, gps_ms, sky=self.sky, speed_mps=truth.speed_mps)
         sky = self.sky.at(t_s)
         if sky.outage or gps_ms < self.no_fix_until_ms:
             return self._no_fix(gps_ms, sky)
-        truth = self.truth()
         dt = max(-0.2, min(0.2, (utc_ns - truth.t_ns) / 1e9))
         vel_enu = truth.vel_enu_of(self.lever_arm_m)
         enu = truth.enu_of(self.lever_arm_m) + vel_enu * dt

@@ -18,6 +18,7 @@ calibration ("the seed's values", docs/README.md#glossary), and the log says so.
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
@@ -44,6 +45,20 @@ TABLE_5_3_OFFSET_LSB = (13.83, -3.18, -3.47)
 TABLE_5_4_OFFSET_NT = (-25828.0, -21703.0)
 TABLE_5_4_ALPHA_DEG = 107.5238
 TABLE_5_4_AXIS_RATIO = 0.9567
+NAN = float("nan")
+#: the car's Razor's noise (docs/sensors.md#imu-noise-figures): `viena calibrate imu noise nocurrent
+#: speed_0hz`, its parked recordings with the traction motor off (77 s, values as its logger wrote
+#: them, in 0.01 steps). Too short for a bias-instability floor: that is bounded, not measured.
+CAR_RAZOR_NOISE = {
+    "recordings": ["razor_parked_nocurrent", "razor_parked_speed_0hz"], "seconds": 77.2, "rate_hz": 82.4,
+    "gyro": {"unit": "deg/s", "quantization": [NAN, NAN, NAN], "random_walk": [0.004844, 0.006489, 0.005147],
+             "bias_instability": [NAN, NAN, NAN], "rate_random_walk": [NAN, NAN, NAN],
+             "bias_instability_at_most": [0.002663, 0.006333, 0.003929], "resolution": 0.01,
+             "bias_after_boot_rms": [0.00539, 0.005426, 0.003649]},
+    "accel": {"unit": "g", "quantization": [NAN, NAN, NAN], "random_walk": [0.000659, 0.0006692, 0.0009815],
+              "bias_instability": [NAN, NAN, NAN], "rate_random_walk": [NAN, NAN, NAN],
+              "bias_instability_at_most": [0.0005136, 0.0005343, 0.0006221], "resolution": 0.01},
+}
 
 def _vec(v) -> tuple:
     return tuple(float(x) for x in v)
@@ -72,6 +87,9 @@ class ImuCalibration:
     source: str = field(default="seed", compare=False)    # "seed", or the file it came from
     updated: str = field(default="", compare=False)
     info: dict = field(default_factory=dict, compare=False)   # fit reports, kept in the file
+    #: Allan noise figures (`viena calibrate imu noise`, docs/sensors.md#imu-noise-figures): not
+    #: used to calibrate samples; for whoever models the unit's errors (its twin, a filter)
+    noise: dict = field(default_factory=dict, compare=False)
 
     # -- updating from fits -----------------------------------------------------------------
     def with_accel(self, fit: AccelFit) -> ImuCalibration:
@@ -95,6 +113,9 @@ class ImuCalibration:
     def with_mount(self, mount: Mount, report: dict) -> ImuCalibration:
         return dataclasses.replace(self, mount_zyx_deg=tuple(mount.zyx_deg),
                                    info={**self.info, "mount": report})
+
+    def with_noise(self, table: dict) -> ImuCalibration:
+        return dataclasses.replace(self, noise=validate_noise(table, "noise"))
 
     def with_time_offset(self, offset_s: float, report: dict) -> ImuCalibration:
         return dataclasses.replace(self, time_offset_s=float(offset_s),
@@ -139,8 +160,9 @@ def seed_calibration(firmware: str = "viena") -> ImuCalibration:
     """The default calibration (docs/sensors.md#default-calibration) in the units each firmware sends."""
     c_inv = _mat(ellipse_c_inv(math.radians(TABLE_5_4_ALPHA_DEG), TABLE_5_4_AXIS_RATIO))
     offset_counts = tuple(nt * 1e-9 / HMC5843_TESLA_PER_COUNT for nt in TABLE_5_4_OFFSET_NT) + (0.0,)
+    noise = copy.deepcopy(CAR_RAZOR_NOISE)
     if firmware == "viena":
-        return ImuCalibration(firmware, mag_offset=offset_counts, mag_c_inv=c_inv)
+        return ImuCalibration(firmware, mag_offset=offset_counts, mag_c_inv=c_inv, noise=noise)
     if firmware == "razor-ahrs":
         # The stock firmware sends its own calibrated values: accel in 1/256 g (the driver
         # divides), magnetometer in counts * 100/600 with its default MAGN limits.
@@ -148,7 +170,7 @@ def seed_calibration(firmware: str = "viena") -> ImuCalibration:
         return ImuCalibration(firmware, nominal, (0.0,) * 3, nominal, (0.0,) * 3,
                               mag_offset=tuple(c * DEFAULT_MAGN_SCALE for c in offset_counts),
                               mag_c_inv=c_inv,
-                              tesla_per_mag_unit=HMC5843_TESLA_PER_COUNT / DEFAULT_MAGN_SCALE)
+                              tesla_per_mag_unit=HMC5843_TESLA_PER_COUNT / DEFAULT_MAGN_SCALE, noise=noise)
     raise ValueError(f"unknown firmware {firmware!r}")
 
 
@@ -222,9 +244,44 @@ def to_table(cal: ImuCalibration) -> dict:
         "mount": {"zyx_deg": list(cal.mount_zyx_deg)},
         "timing": {"offset_s": cal.time_offset_s},
     }
+    if cal.noise:
+        table["noise"] = cal.noise
     if cal.info:
         table["info"] = cal.info
     return table
+
+
+#: the noise table's per-axis entries (docs/sensors.md#imu-noise-figures)
+NOISE_SENSORS = ("gyro", "accel")
+NOISE_TERMS = ("quantization", "random_walk", "bias_instability", "bias_instability_at_most",
+               "rate_random_walk", "bias_after_boot_rms")
+
+
+def validate_noise(table: dict, where: str) -> dict:
+    """A noise table as stored: per sensor, each term three numbers >= 0, or nan where the
+    recordings did not show it. Other keys (where the figures came from) are kept as they are."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: must be a table")
+    for sensor in NOISE_SENSORS:
+        sub = table.get(sensor, {})
+        if not isinstance(sub, dict):
+            raise ConfigError(f"{where}.{sensor}: must be a table")
+        for term in NOISE_TERMS:
+            v = sub.get(term)
+            if v is None:
+                continue
+            if (not isinstance(v, list) or len(v) != 3
+                    or not all(isinstance(x, (int, float)) and (math.isnan(x) or 0 <= x < math.inf) for x in v)):
+                raise ConfigError(f"{where}.{sensor}.{term}: must be three numbers >= 0 (nan: not measured)")
+    return table
+
+
+def noise_figure(noise: dict, sensor: str, term: str) -> tuple | None:
+    """One term's three values, None where the table has no such term or all are nan."""
+    v = noise.get(sensor, {}).get(term)
+    if v is None or all(math.isnan(x) for x in v):
+        return None
+    return tuple(float(x) for x in v)
 
 
 def from_table(table: dict, where: str, source: str) -> ImuCalibration:
@@ -248,7 +305,8 @@ def from_table(table: dict, where: str, source: str) -> ImuCalibration:
             mount_zyx_deg=_vec(mount.get("zyx_deg", base.mount_zyx_deg)),
             time_offset_s=float(timing.get("offset_s", base.time_offset_s)),
             source=source, updated=str(table.get("updated", "")),
-            info=dict(table.get("info", {})))
+            info=dict(table.get("info", {})),
+            noise=validate_noise(table.get("noise", base.noise), f"{where} noise"))
     except (TypeError, ValueError, AttributeError) as exc:
         raise ConfigError(f"{where}: {exc}") from None
     return cal.validate(where)

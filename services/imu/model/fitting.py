@@ -7,7 +7,8 @@
 - magnetometer, a car turning in circles: the field traces an ellipse in the XY plane;
   its centre is the hard-iron offset and its shape gives C^-1 = R_cal S R_cal^T
   (docs/sensors.md#magnetometer-2-d-ellipse), with z left alone: a car turns about z only;
-- magnetometer, data spanning 3-D: a full ellipsoid, C^-1 its symmetric square root.
+- magnetometer, data spanning 3-D: a full ellipsoid, C^-1 its symmetric square root;
+- any fit over a drive: a block bootstrap for its uncertainty (`block_weights`).
 
 Every fit checks that the data can support it and raises FitError saying why not.
 """
@@ -24,6 +25,30 @@ POSES = ("+x", "-x", "+y", "-y", "+z", "-z")
 
 class FitError(ValueError):
     """The data cannot give this calibration (too few points, degenerate shape, moving)."""
+
+
+# -- uncertainty of a fit over a drive -------------------------------------------------------
+def block_weights(t_sets: list[np.ndarray], block_s: float, replicates: int = 200,
+                  seed: int = 0) -> tuple[list[np.ndarray], int]:
+    """A block bootstrap's weights: the drive cut into blocks of block_s, each replicate
+    drawing as many blocks with replacement, every point weighted by how often its block
+    was drawn (replicates x points, one matrix per set of times, all drawn alike), and the
+    number of blocks. Blocks, not points, because the errors of neighbouring points (a
+    road's slope, a receiver's wander) are alike: resampling points would call a drive
+    sure of what one stretch of road says many times over."""
+    t0 = min(float(np.min(t)) for t in t_sets)
+    index = [np.floor((np.asarray(t, float) - t0) / block_s).astype(int) for t in t_sets]
+    names = np.unique(np.concatenate(index))
+    drawn = np.random.default_rng(seed).integers(0, len(names), (replicates, len(names)))
+    counts = np.zeros((replicates, len(names)))
+    np.add.at(counts, (np.arange(replicates)[:, None], drawn), 1.0)
+    return [counts[:, np.searchsorted(names, ix)] for ix in index], len(names)
+
+
+def bootstrap_sigma(values: np.ndarray, blocks: int, axis: int = 0) -> np.ndarray:
+    """The spread of bootstrap replicates, widened for few blocks (the bootstrap's variance
+    is low by (blocks - 1) / blocks)."""
+    return np.std(values, axis=axis, ddof=1) * math.sqrt(blocks / max(blocks - 1, 1))
 
 
 # -- finding still periods --------------------------------------------------------------------

@@ -1,6 +1,7 @@
 """Twins of the Razor IMU for the simulated car (they plug into viena.common.twin.serial_port).
 
-    twin = RazorTwin(car.truth)                          # VIENA firmware, default figures
+    twin = RazorTwin(car.truth)                          # VIENA firmware, the car's figures
+    twin = RazorTwin(car.truth, RazorBoard(errors=NO_ERRORS))   # white noise and quantisation only
     twin = RazorAhrsTwin(car.truth)                      # stock Razor AHRS firmware
     twin = RazorReplayTwin.parked("speed_20hz")          # a real recording, as frames
     endpoint = SerialEndpoint(twin).start()              # driver opens endpoint.url
@@ -8,7 +9,8 @@
 from viena.common.config import merge_settings
 from viena.common.errors import ConfigError
 from viena.common.twin.serial_port import SerialEndpoint
-from viena.services.imu.simulator.board import LISBON_FIELD_ENU_NT, Measurement, RazorBoard
+from viena.services.imu.model.imu_errors import NO_ERRORS, ImuErrors
+from viena.services.imu.simulator.board import CAR_RAZOR_ERRORS, LISBON_FIELD_ENU_NT, Measurement, RazorBoard
 from viena.services.imu.simulator.razor_ahrs_twin import RazorAhrsTwin
 from viena.services.imu.simulator.razor_twin import BANNER, RazorReplayTwin, RazorTwin
 
@@ -37,6 +39,7 @@ TWIN_SETTINGS = {
     "seed": 0,
     "mount_zyx_deg": [0.0, 0.0, 0.0],   # how the board sits in the car (model/mount.py)
     "delay_s": 0.0,            # frames leave late by this much: the service stamps them late
+    "errors": "car",           # car: the car's error figures (docs/sensors.md#imu-error-model); none: white only
 }
 
 
@@ -47,8 +50,11 @@ def make_razor_device(name: str, table: dict, car, service) -> SerialEndpoint:
     kwargs = {"seed": s["seed"]}
     if s["delay_s"]:
         kwargs["delay_s"] = s["delay_s"]
-    if any(s["mount_zyx_deg"]):
-        kwargs["board"] = RazorBoard(mount_zyx_deg=tuple(s["mount_zyx_deg"]))
+    if s["errors"] not in ("car", "none"):
+        raise ConfigError(f"{source}: errors must be car or none, not {s['errors']!r}")
+    if any(s["mount_zyx_deg"]) or s["errors"] == "none":
+        kwargs["board"] = RazorBoard(mount_zyx_deg=tuple(s["mount_zyx_deg"]),
+                                     errors=CAR_RAZOR_ERRORS if s["errors"] == "car" else NO_ERRORS)
     if s["boot_s"] >= 0:
         kwargs["boot_s"] = s["boot_s"]
     try:
@@ -59,5 +65,4 @@ def make_razor_device(name: str, table: dict, car, service) -> SerialEndpoint:
 
 
 __all__ = ["make_razor_device", "TWIN_SETTINGS", "RazorBoard", "Measurement", "LISBON_FIELD_ENU_NT", "RazorTwin",
-           "RazorReplayTwin",
-           "RazorAhrsTwin", "BANNER", "make_twin"]
+           "RazorReplayTwin", "RazorAhrsTwin", "BANNER", "make_twin", "CAR_RAZOR_ERRORS", "NO_ERRORS", "ImuErrors"]
