@@ -34,7 +34,8 @@ from viena.services.pilot.model.state import STATE as PILOT_STATE
 from viena.services.sim.model.truth import IST_ORIGIN
 from viena.services.steering.model.state import STATE as STEERING_STATE
 
-pytestmark = [pytest.mark.slow, pytest.mark.realtime]  # processes: a pilot and a steering, with watchdogs
+pytestmark = [pytest.mark.slow,  # processes: a pilot and a steering, with watchdogs, a route flood among
+              pytest.mark.car(seconds=45, realtime=True)]    # them: in the first lane, not beside another car
 
 CAR = "viena/elettra"
 FRAME = LocalFrame(*IST_ORIGIN)
