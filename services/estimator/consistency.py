@@ -57,17 +57,14 @@ class Consistency:
         self.inflate_after_ns = int(inflate_after_s * 1e9)
         self.nis = {k: None for k in KINDS}            # average d2 per dimension
         self.test_ratio = {k: None for k in KINDS}     # last d2 / gate
-        self.q_scale = 1.0
-        self._since_scale = 0
-        self._refused: dict[tuple[str, str], tuple[int, int]] = {}    # refusals in a row, since
-        self._refused_share = {"position": 0.0, "velocity": 0.0}
         self._velocity_seen = AVERAGE_UPDATES     # updates since the last velocity one
+        self.restart()
 
     def restart(self) -> None:
         """A new estimate: what the old one's innovations said no longer holds."""
         self.q_scale = 1.0
         self._since_scale = 0
-        self._refused.clear()
+        self._refused: dict[tuple[str, str], tuple[int, int]] = {}    # refusals in a row, since
         self._refused_share = {"position": 0.0, "velocity": 0.0}
 
     def seen(self, kind: str, d2: float, dof: int, gate: float, judges: bool = True) -> None:
