@@ -1,7 +1,10 @@
 """What comes on pilot/route and pilot/cmd, read off the control thread.
 
 The zenoh callbacks only size a payload up and queue it: one larger than its kind's limit,
-or one more while `capacity` wait already, is answered at once and never queued. One
+or one more while `capacity` wait already, is answered at once and never queued. Puts
+(which nobody waits on) may hold only PUTS_WAITING of those places: a flood of puts is
+dropped and counted at the door, so a query waits behind a few puts at most, never behind
+a full queue of them. One
 reader thread takes the rest in the order they came, reads each (model/route.py bounds a
 route's size and depth, parse_payload a command's), answers every refusal itself, and
 hands the control thread only what it has to decide: a Route read and checked (its
@@ -36,6 +39,8 @@ MAX_BYTES = {ROUTE: MAX_ROUTE_BYTES, CMD: MAX_COMMAND_BYTES}
 #: requests waiting to be read, and read ones waiting for the control thread (32 routes of
 #: 256 KiB: 8 MB, read in about a second)
 CAPACITY = 32
+#: of those, the most that may be puts (a query waits behind these at most, plus other queries)
+PUTS_WAITING = 4
 #: the most requests the control thread decides in one tick
 PER_TICK = 8
 
@@ -67,9 +72,11 @@ class Inbox:
     """See the module docstring. The control thread calls `take` each tick, and `decided`
     after each request taken."""
 
-    def __init__(self, pilot: Pilot, log, health, stopping: threading.Event, capacity: int = CAPACITY):
+    def __init__(self, pilot: Pilot, log, health, stopping: threading.Event, capacity: int = CAPACITY,
+                 puts_waiting: int = PUTS_WAITING):
         self._pilot, self._health, self._stopping = pilot, health, stopping
         self._arrived: queue.Queue = queue.Queue(maxsize=capacity)
+        self._put_places = threading.BoundedSemaphore(min(puts_waiting, capacity))
         self._read: queue.Queue[Request] = queue.Queue(maxsize=capacity)
         self._numbers = itertools.count(1)
         self._handed = self._decided = 0            # each written by one thread only
@@ -111,9 +118,14 @@ class Inbox:
         if len(data) > MAX_BYTES[kind]:
             self._refuse(kind, query, like, f"{kind} of {len(data)} bytes: at most {MAX_BYTES[kind]} are read")
             return
+        if query is None and not self._put_places.acquire(blocking=False):
+            self._refuse(kind, query, like, "busy: puts wait to be read; send it again later", "busy")
+            return
         try:
             self._arrived.put_nowait((kind, data, encoding, query, number))
         except queue.Full:
+            if query is None:
+                self._put_places.release()
             self._refuse(kind, query, like, f"busy: {self._arrived.maxsize} requests wait to be read; "
                                             f"send it again later", "busy")
 
@@ -124,6 +136,8 @@ class Inbox:
                 arrived = self._arrived.get(timeout=0.1)
             except queue.Empty:
                 continue
+            if arrived[3] is None:                      # a put's place is free again
+                self._put_places.release()
             self._serve(*arrived)
             del arrived        # a query's answers end when the last reference to it goes
 

@@ -163,6 +163,37 @@ def test_a_full_inbox_answers_busy_at_once(caplog):
     inbox.join(1.0)
 
 
+class FakeSample:
+    """What Inbox needs of a zenoh.Sample: its payload and encoding."""
+
+    def __init__(self, data: bytes):
+        self.payload, self.encoding = zenoh.ZBytes(data), None
+
+
+def test_a_flood_of_puts_leaves_room_for_queries():
+    """CI: a query waited more than 5 s behind 32 large routes put by a flooder. Puts hold
+    at most `puts_waiting` places; the rest are dropped and counted, queries still queue."""
+    health, stopping = FakeHealth(), threading.Event()
+    inbox = Inbox(Pilot(), logging.getLogger("viena.pilot"), health, stopping, capacity=8, puts_waiting=2)
+    on_put, on_query = inbox.on_put("route"), inbox.on_query("route", FakeQuery.key_expr, "usage")
+    for _ in range(10):
+        on_put(FakeSample(ROUTE))
+    assert health.errors == {"route_busy": 8}
+    queries = [FakeQuery(ROUTE) for _ in range(6)]
+    for query in queries:
+        on_query(query)
+    assert all(q.replies == [] for q in queries)          # all six queued behind the two puts
+    inbox.start()
+    taken: list = []
+    assert wait_until(lambda: taken.extend(inbox.take()) or len(taken) == 8, 5.0)
+    assert [r.query is None for r in taken] == [True, True] + [False] * 6
+    on_put(FakeSample(ROUTE))                             # read: the puts' places are free again
+    assert wait_until(lambda: taken.extend(inbox.take()) or len(taken) == 9, 5.0)
+    assert health.errors == {"route_busy": 8}
+    stopping.set()
+    inbox.join(1.0)
+
+
 LEAVES = st.none() | st.booleans() | st.integers(-2**63, 2**63 - 1) | st.floats() | st.text(max_size=5)
 KEYS = st.sampled_from(["type", "points", "checkpoints", "lat", "lon", "coordinates", "geometry", "features",
                         "properties", "speeds_mps", "speed_mps", "APP_ROUTE_latitude", "APP_FINAL_COORDINATE", "x"])
