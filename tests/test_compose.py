@@ -1,26 +1,15 @@
 """The `sim` profile's life under supervisord: status, logs and down leave nothing behind,
 and a foreground `viena up` stops everything on Ctrl-C. (The profile watched with the
 `zenoh` CLI and `viena sub`: test_sim_profile.py, on the profile that module runs.)"""
-import os
 import subprocess
 from pathlib import Path
 
 import pytest
 from vienatest import VIENA, sim_profile_up, viena, wait_until
 
+from viena.runstate import process_alive
+
 pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=11)]  # whole profiles under supervisord
-
-
-def alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    # a zombie is gone for our purposes
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
-    except FileNotFoundError:
-        return False
 
 
 @pytest.fixture
@@ -45,7 +34,7 @@ def test_status_logs_and_down_leave_nothing_behind(sim_profile):
     assert "started: car elettra" in logs.stdout
     down = viena("down", "--profile", "sim", env=env)
     assert down.returncode == 0, down.stderr
-    assert not any(alive(pid) for pid in [*pids, supervisord])
+    assert not any(process_alive(pid) for pid in [*pids, supervisord])
     assert viena("status", "--profile", "sim", env=env).returncode == 3
 
 
@@ -65,7 +54,7 @@ def test_foreground_up_stops_everything_on_ctrl_c(clean_env):
         assert len(pids) >= 2
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=20) == 0
-        assert not any(alive(pid) for pid in pids)
+        assert not any(process_alive(pid) for pid in pids)
     finally:
         if proc.poll() is None:
             proc.kill()

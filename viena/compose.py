@@ -30,7 +30,15 @@ from viena.common.errors import ConfigError
 from viena.paths import compose_dir
 from viena.profile_security import SecurityRefusal, secure_environment
 from viena.profile_security import programs as programs_in
-from viena.runstate import profiles, read_environment, run_dir, running_profiles, state_root, supervisord_pid  # noqa: F401
+from viena.runstate import (  # noqa: F401
+    process_alive,
+    profiles,
+    read_environment,
+    run_dir,
+    running_profiles,
+    state_root,
+    supervisord_pid,
+)
 
 DEFAULT_PROFILE = "sim"
 _PORT_VAR = re.compile(r"(?:%\(ENV_|\$\{)(VIENA_[A-Z0-9_]*PORT)(?:\)s|:-(\d+)\}|\})")
@@ -247,10 +255,11 @@ def down(profile: str, timeout: float = 15.0) -> int:
         print(f"viena: stopping the programs one priority at a time failed ({exc}); "
               f"supervisord stops them", file=sys.stderr)
     ctl(profile, "shutdown", capture=True)
+    # wait for the process itself: supervisord removes its pidfile before it has exited
     end = time.monotonic() + timeout
-    while time.monotonic() < end and supervisord_pid(profile):
-        time.sleep(0.1)
-    if supervisord_pid(profile):
+    while time.monotonic() < end and process_alive(pid):
+        time.sleep(0.05)
+    if process_alive(pid):
         os.kill(pid, signal.SIGTERM)
         raise ComposeError(f"supervisord (pid {pid}) did not stop in {timeout:.0f} s; sent SIGTERM")
     print(f"profile '{profile}' is down")

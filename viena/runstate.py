@@ -49,6 +49,20 @@ def supervisord_pid(profile: str) -> int | None:
         return None
 
 
+def process_alive(pid: int) -> bool:
+    """Whether `pid` is still a process (a zombie waiting for its parent is not)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except (OSError, IndexError):
+        return True
+
+
 def running_profiles() -> list[str]:
     return [p for p in profiles() if supervisord_pid(p)]
 
