@@ -5,9 +5,11 @@
 Prints, for pure pursuit and Stanley:
 - cross-track error against the truth, RMS / p95 / max, around the loop at 3, 5 and 8 m/s:
   the pilot's model (services/pilot/model) steering the sim's kinematic bicycle
-  (services/sim/model/car.py) in one process, 50 Hz setpoints, the steering envelope's
-  30 deg/s slew, the estimate taken from the truth (the estimator in the loop is the
-  closed-loop test's and the live benchmark's job);
+  (services/sim/model/car.py) in one process, 50 Hz setpoints judged by the steering's own
+  envelope (services/steering/model/safety.py, with the truth's speed as the estimator's),
+  and how many setpoints that envelope limited (0 is the goal: the pilot plans inside it);
+  the estimate taken from the truth (the estimator in the loop is the closed-loop test's
+  and the live benchmark's job);
 - the pilot's CPU at 50 Hz: the model's time per tick (projection, tracker, checks, state
   sample), as a share of one core;
 - live (unless --no-live): the sim profile with viena-pilot at 50 Hz, once round the loop
@@ -36,8 +38,9 @@ from viena.services.pilot.model.state import STATE
 from viena.services.sim.model.car import CarParams, SimCar
 from viena.services.sim.model.route import default_route
 from viena.services.sim.model.truth import IST_ORIGIN
-
-SLEW_DEG_S = 30.0          # the steering envelope's slew (services/steering/model/safety.py)
+from viena.services.steering.model.requests import parse_setpoint
+from viena.services.steering.model.safety import Envelope
+from viena.services.steering.model.signing import signed_setpoint
 
 
 def loop_route(every: int = 1) -> Route:
@@ -70,6 +73,8 @@ class Drive:
     checkpoint_miss_m: np.ndarray      # closest approach of the truth to each checkpoint
     seconds: float
     estimate_error_m: np.ndarray | None = None     # live: the estimator's horizontal error
+    limited: dict | None = None                    # setpoints the steering's envelope limited, by limit
+    setpoints: int = 0
 
     def figures(self) -> str:
         e = np.abs(self.cross_track_m)
@@ -103,26 +108,60 @@ def drive_loop(speed_min_mps: float, speed_max_mps: float, controller: str = "pu
     refused = pilot.start(truth.t_ns)
     if refused:
         raise RuntimeError(f"pilot refused to start: {refused}")
+    steering = SteeringGate(truth.t_ns)
+    pilot.on_armed(steering.figures, truth.t_ns, 0.0)
     errors, near = [], None
     miss = np.full(len(truth_path.points), np.inf)
     every = max(1, round(1.0 / (rate_hz * dt_s)))
-    target = 0.0
     for k in range(int(limit_s / dt_s)):
+        now_s = k * dt_s
         if k % every == 0:
+            steering.speed(truth, now_s)
             pilot.on_estimate(estimate_from_truth(truth))
+            pilot.steering_speed_mps = steering.env.limits_now(now_s)[0].mps
             angle = pilot.tick(truth.t_ns)
             if angle is None:
                 break
-            target = angle
+            steering.setpoint(math.degrees(angle), math.degrees(wheel[0]), now_s, truth.t_ns)
             where = truth_path.project(float(truth.enu_m[0]), float(truth.enu_m[1]), near_s_m=near)
             near = where.s_m
             errors.append(where.cross_track_m)
-        step = math.radians(SLEW_DEG_S) * dt_s
-        wheel[0] += max(-step, min(step, target - wheel[0]))
+        target, _ = steering.env.tick(math.degrees(wheel[0]), now_s)
+        if target is not None:
+            wheel[0] = math.radians(target)              # the drive holds the target (its lag aside)
         truth = car.step(dt_s)
         d = np.hypot(truth_path.points[:, 0] - truth.enu_m[0], truth_path.points[:, 1] - truth.enu_m[1])
         miss = np.minimum(miss, d)
-    return Drive(pilot.mode, pilot.reason, np.array(errors), miss, truth.t_s)
+    return Drive(pilot.mode, pilot.reason, np.array(errors), miss, truth.t_s, limited=dict(steering.limited),
+                 setpoints=steering.setpoints)
+
+
+class SteeringGate:
+    """The steering service's envelope (services/steering/model/safety.py), as it judges the
+    pilot's setpoints: armed at the centre, the car's range, the truth's speed given as the
+    estimator's (sigma 0.05 m/s). Counts the setpoints it limited, by limit."""
+
+    def __init__(self, wall_ns: int):
+        self.env = Envelope()
+        self.env.set_range(-29.0, 29.0)
+        self.lease = self.env.arm(0.0, 0.0)
+        self.figures = {**self.env.lateral.as_dict(), "slew_deg_s": self.env.settings.slew_deg_s}
+        self.limited: dict[str, int] = {}
+        self.setpoints = 0
+        self._seq = 0
+
+    def speed(self, truth, now_s: float) -> None:
+        self.env.speeds.estimator(truth.t_ns, float(truth.speed_mps), 0.05, True, now_s, truth.t_ns)
+
+    def setpoint(self, angle_deg: float, measured_deg: float, now_s: float, wall_ns: int) -> None:
+        self._seq += 1
+        request = parse_setpoint(signed_setpoint(self.lease, angle_deg, seq=self._seq, t_ns=wall_ns))
+        decision = self.env.setpoint(request, measured_deg, now_s, wall_ns)
+        if decision.status == "rejected":
+            raise RuntimeError(f"the steering refused a setpoint: {decision.reason}")
+        self.setpoints += 1
+        for limit in decision.limits:
+            self.limited[limit] = self.limited.get(limit, 0) + 1
 
 
 def loop_route_from(x_m: float, y_m: float, ahead_m: float = 2.0) -> Route:
@@ -296,13 +335,14 @@ def main(argv: list[str] | None = None) -> int:
                    help="the sim person's speeds for the live part (each a drive per GNSS grade)")
     args = p.parse_args(argv)
     print("pilot: cross-track error against the truth round the 40 m x 24 m loop "
-          "(in-process bicycle, 50 Hz, 30 deg/s slew)")
+          "(in-process bicycle, 50 Hz, through the steering's speed envelope)")
     for controller in ("pure_pursuit", "stanley"):
         for speed in (3.0, 5.0, 8.0):
             drive = drive_loop(speed, speed, controller)
             print(f"  {controller:12s} {speed:.0f} m/s: {drive.figures()}; {drive.mode} "
                   f"({drive.reason}) in {drive.seconds:.1f} s; worst checkpoint "
-                  f"{drive.checkpoint_miss_m.max():.2f} m")
+                  f"{drive.checkpoint_miss_m.max():.2f} m; the envelope limited "
+                  f"{sum(drive.limited.values())} of {drive.setpoints} setpoints {drive.limited or ''}")
     cost = tick_cost_s(args.cpu_seconds)
     print(f"pilot: one tick + state sample {cost * 1e6:.0f} us: at 50 Hz "
           f"{cost * 50 * 100:.2f} % of a core (goal < 5 %)", flush=True)

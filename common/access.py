@@ -51,8 +51,10 @@ def _device(kind: str) -> Role:
 ROLES: dict[str, Role] = {
     "gnss": _device("gnss"),
     "imu": _device("imu"),
-    "steering": Role("the steering service: its state and health; answers the steering commands",
+    "steering": Role("the steering service: its state and health; answers the steering commands; reads "
+                     "the car's speed from the estimator and the receivers",
                      publish=("steering/state", "steering/health"), serve=STEERING_COMMANDS,
+                     subscribe=("estimator/state", "gnss/*/fix"),
                      receive=("steering/setpoint", "steering/estop"), token=("alive/steering",)),
     "estimator": Role("the estimator: reads the devices, publishes the car's state",
                       publish=("estimator/**",),

@@ -28,13 +28,12 @@ import random
 import signal
 import threading
 import time
-import xmlrpc.client
 from dataclasses import dataclass, field
 
 import msgpack
 import numpy as np
 import pytest
-from vienatest import VIENA, Processes, open_session, sim_profile_up, wait_for_line, wait_until
+from vienatest import VIENA, Processes, open_session, sim_profile_up, supervisor, wait_for_line, wait_until
 
 from viena.recording import Recording
 from viena.services.steering.client import ConflictingReplies, SteeringClient
@@ -65,14 +64,6 @@ def command_deg(t_s: float) -> float:
     return AMPLITUDE_DEG * (4 * phase - 1 if phase < 0.5 else 3 - 4 * phase)
 
 
-def supervisor(run):
-    """supervisord's XML-RPC interface of the profile running in `run`."""
-    from supervisor.xmlrpc import SupervisorTransport
-
-    transport = SupervisorTransport(None, None, f"unix://{run}/supervisor.sock")
-    return xmlrpc.client.ServerProxy("http://127.0.0.1", transport=transport).supervisor
-
-
 class Watcher:
     """A subscriber on every key of the car: when each key was last heard, every (key, seq),
     the truth (wheel and position) and the estimator's states, by arrival time."""
@@ -84,6 +75,7 @@ class Watcher:
         self.truth_t: list[int] = []                           # truth `t`, ns, in order
         self.truth: list[tuple[float, float, np.ndarray]] = []  # (arrival, wheel deg, enu)
         self.errors_m: list[tuple[float, float]] = []          # (arrival, estimator horizontal error)
+        self.last_state: dict = {}                             # the estimator's newest state
         self._sub = session.declare_subscriber(f"{CAR}/**", self._on_sample)
 
     def _on_sample(self, sample) -> None:
@@ -102,8 +94,10 @@ class Watcher:
                     self.truth_t.clear()
                 self.truth_t.append(value["t"])
                 self.truth.append((now, math.degrees(value["wheel_angle_rad"]), np.array(value["enu_m"])))
-            elif key.endswith("/estimator/state") and value["position_valid"]:
-                self._estimator_error(now, value)
+            elif key.endswith("/estimator/state"):
+                self.last_state = value
+                if value["position_valid"]:
+                    self._estimator_error(now, value)
 
     def _estimator_error(self, now: float, state: dict) -> None:
         i = bisect.bisect_left(self.truth_t, state["t"])
@@ -113,6 +107,17 @@ class Watcher:
 
     def close(self) -> None:
         self._sub.undeclare()
+
+    def estimator_summary(self, since: float) -> str:
+        """Why the estimator is not back, for the failure's message: its errors since, and
+        what its newest state says (no position yet, receivers on probation, a reset)."""
+        with self.lock:
+            errors = sorted(e for t, e in self.errors_m if t > since)
+            s = self.last_state
+        median = f"{errors[len(errors) // 2]:.2f} m" if errors else "none"
+        return (f"{len(errors)} errors since the kill, median {median}; newest state: mode {s.get('mode')}, "
+                f"position_valid {s.get('position_valid')}, admission {s.get('gnss_admission')}, "
+                f"rejected {s.get('gnss_rejected')}, last reset {s.get('last_reset')}")
 
     def first_heard_after(self, key: str, t: float) -> float:
         with self.lock:
@@ -201,6 +206,7 @@ class Kill:
     last_key: str = ""                   # the key that flowed again last
     pilot_out_s: float = 0.0             # last accepted setpoint before -> next after
     tracked_invalid_s: float = 0.0       # the longest the wheel followed commands not accepted
+    estimator_note: str = ""             # when the estimator did not come back: what it was doing
 
 
 def kill_and_watch(sup, program: str, watcher: Watcher, keys: set[str]) -> Kill:
@@ -358,6 +364,8 @@ def _chaos(env, router, sup, watcher, pilot_session, procs, order, rng, tmp_path
         kill = kill_and_watch(sup, program, watcher, keys)
         kills.append(kill)
         kill.estimator_s = estimator_back(watcher, kill.t_mono, kill.back_s or 0.0)
+        if kill.estimator_s is None:
+            kill.estimator_note = watcher.estimator_summary(kill.t_mono)
         # the pilot steering again closes this kill's window for the wheel check
         wait_until(lambda: pilot.accepted_times()[-1] > time.monotonic() - 0.2, 60, period=0.05)
     pilot.stop()

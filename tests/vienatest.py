@@ -90,6 +90,16 @@ def sim_profile_up(run: Path, **environment: str):
         viena("down", "--profile", "sim", env=env)
 
 
+def supervisor(run: Path):
+    """supervisord's XML-RPC interface of the profile running in `run`."""
+    import xmlrpc.client
+
+    from supervisor.xmlrpc import SupervisorTransport
+
+    transport = SupervisorTransport(None, None, f"unix://{run}/supervisor.sock")
+    return xmlrpc.client.ServerProxy("http://127.0.0.1", transport=transport).supervisor
+
+
 def collect(session, keyexpr: str, count: int, timeout: float = 10.0, decode=None) -> list:
     """The first `count` samples on keyexpr (decoded by `decode` if given)."""
     return collect_until(session, keyexpr, lambda out: len(out) >= count, timeout, decode)
@@ -180,7 +190,8 @@ def steering_on(procs: Processes, router: str, twin, config: Path):
     (process, ready), where `ready(state)` says whether a steering state is past its
     calibration, and lets the person at the wheel read it (they sweep again if the service
     threw a sweep away, as a stalled host makes it do)."""
-    config.write_text("[steering]\nsweep_settle_s = 0.2\n")
+    # a drive on a bench: no estimator, no speed assumed (the speed envelope has its own tests)
+    config.write_text("[steering]\nsweep_settle_s = 0.2\nspeed_conservative_mps = 0.0\n")
     proc = procs.python("-m", "viena.services.steering.service", "--connect", router, "--config", config,
                         "--interface", "slcan", "--channel", twin.url, "--log-level", "WARNING")
     return proc, calibrated_with_a_person_at(twin.twin)

@@ -29,7 +29,7 @@ import sys
 from viena import compose
 from viena.common.session import add_version_flag
 
-BENCHES = ["sim", "gnss", "imu", "steering", "estimator", "laptop", "security", "faults", "fleet",
+BENCHES = ["sim", "gnss", "imu", "steering", "steering_envelope", "estimator", "laptop", "security", "faults", "fleet",
            "foxglove", "pilot"]
 
 #: commands that live in their own module, each with build_parser(parser) and run(args);

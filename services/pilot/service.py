@@ -53,7 +53,7 @@ from viena.services.steering.model.state import STATE as STEERING_STATE
 
 #: who this process is on a secured car (a certificate of role `autopilot`, docs/pilot.md)
 IDENTITY = "autopilot"
-_STEERING = STEERING_STATE.reader("armed", "owner", "trip")
+_STEERING = STEERING_STATE.reader("armed", "owner", "trip", "speed_mps")
 #: steering states arriving this soon after the arm may predate it
 ARM_MARGIN_S = 0.1
 #: how often the route held is published again on pilot/path
@@ -186,13 +186,14 @@ class PilotService(Service):
                 self.pilot.stop("estop")
                 self.log.warning("estop: stopped")
         before = self.pilot.mode
+        # armed before the angle is made: the pilot plans from the steering's target and limits
+        if self.pilot.mode == "following" and self.client.lease is None and not self._arm():
+            return
         angle_rad = self.pilot.tick(time.time_ns())
         if angle_rad is None:
             if self.pilot.mode != before:
                 self.log.info("%s: %s", self.pilot.mode, self.pilot.reason)
             self._give_back_lease()
-            return
-        if self.client.lease is None and not self._arm():
             return
         self._setpoint(math.degrees(angle_rad))
 
@@ -215,11 +216,12 @@ class PilotService(Service):
         if sample is None:
             return
         try:
-            armed, owner, trip = _STEERING(unpack(sample.payload.to_bytes(), "steering state"))
+            armed, owner, trip, speed = _STEERING(unpack(sample.payload.to_bytes(), "steering state"))
         except InputError:
             self.health.error("bad_steering_state")
             return
         self._steering = (time.monotonic(), armed, owner, trip)
+        self.pilot.steering_speed_mps = speed
 
     def _arm(self) -> bool:
         try:
@@ -229,6 +231,14 @@ class PilotService(Service):
         if reply.get("status") != ACCEPTED or not self.client.lease:
             self.pilot.stop(f"steering refused to arm: {reply.get('reason', reply.get('status'))}")
             self.log.warning("stopped: %s", self.pilot.reason)
+            return False
+        try:
+            self.pilot.on_armed(reply.get("envelope"), time.time_ns(), reply.get("target_deg"))
+        except (ValueError, TypeError) as exc:
+            self.pilot.stop(f"steering's envelope unreadable: {exc}")
+            self.log.warning("stopped: %s", self.pilot.reason)
+            self._owner = reply.get("owner")
+            self._give_back_lease()
             return False
         self._owner, self._armed_at = reply.get("owner"), time.monotonic()
         self.health.count("armed")

@@ -202,7 +202,11 @@ def main(argv=None) -> int:
         if reply.get("status") != "accepted":
             return 1
         try:
-            print(json.dumps(client.hold(args.angle_deg, args.seconds, args.rate_hz)))
+            held = client.hold(args.angle_deg, args.seconds, args.rate_hz)
+            print(json.dumps(held))
+            if held.get("limits"):             # what the envelope made of the angle, for a person
+                goal = held.get("goal_deg", held.get("target_deg"))
+                print(f"viena-steer: limited to {goal:.2f} deg: {held.get('reason')}", file=sys.stderr)
         finally:
             print(json.dumps(client.disarm()))
     except ConflictingReplies as exc:

@@ -168,6 +168,16 @@ class SteeringController:
         self._deliver()
         return _rejected(f"CAN link lost: {lost}") if lost and answer is not None else answer
 
+    def speed(self, source: str, t_ns: int, speed_mps: float, sigma_mps: float, valid: bool) -> str:
+        """A speed for the envelope from `source` ("estimator", or a GNSS unit's name); the
+        cause it was refused for, or "" (model/speed.py)."""
+        now, wall_ns = self._clock(), self._wall_ns()
+        with self._lock:
+            sources = self.core.envelope.speeds
+            if source == "estimator":
+                return sources.estimator(t_ns, speed_mps, sigma_mps, valid, now, wall_ns)
+            return sources.gnss(source, t_ns, speed_mps, sigma_mps, valid, now, wall_ns)
+
     # -- the control thread ----------------------------------------------------------------
     def _control_loop(self) -> None:
         period = self.drive.settings.sync_period_s

@@ -24,19 +24,25 @@ map) on steering/estop, by put or query.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import zenoh
 
-from viena.common.errors import PayloadError
+from viena.common.errors import InputError, PayloadError
 from viena.common.log import Throttled
 from viena.common.payload import parse_payload
+from viena.common.schema import unpack
 from viena.common.service import Service, query_payload, reply_to, run_service
 from viena.common.settings import part
+from viena.services.estimator.state import STATE as ESTIMATOR_STATE
+from viena.services.gnss.model.fix import FIX
 from viena.services.steering.controller import ControllerSettings, SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
 from viena.services.steering.model.calibration import CalibrationSettings
+from viena.services.steering.model.lateral import LateralSettings
 from viena.services.steering.model.safety import REJECTED, Envelope, SafetySettings
+from viena.services.steering.model.speed import SpeedSettings
 from viena.services.steering.model.state import STATE
 
 
@@ -47,6 +53,8 @@ class SteeringSettings:
     drive: DriveSettings = part(DriveSettings, "the CAN link and the drive's configuration")
     calibration: CalibrationSettings = part(CalibrationSettings, "the power-up lock-to-lock sweep")
     envelope: SafetySettings = part(SafetySettings, "what a setpoint may do")
+    lateral: LateralSettings = part(LateralSettings, "how far and fast the wheel may turn at a speed")
+    speed: SpeedSettings = part(SpeedSettings, "where the envelope's speed comes from")
     controller: ControllerSettings = part(ControllerSettings, "stops, state, reconnects")
 
 
@@ -67,14 +75,17 @@ class SteeringService(Service):
             logging.getLogger("canopen").setLevel(logging.WARNING)   # one line per PDO otherwise
         drive = EposDrive(s.drive)
         self._state_pub = self.publisher(self.keys.key("steering", "state"), STATE)
-        self.controller = SteeringController(drive, Envelope(s.envelope), s.calibration, s.controller,
-                                             on_state=self._publish_state)
+        envelope = Envelope(s.envelope, s.lateral, s.speed)
+        self.controller = SteeringController(drive, envelope, s.calibration, s.controller, on_state=self._publish_state)
         key = lambda name: self.keys.key("steering", name)        # noqa: E731
         for name in ("arm", "setpoint", "calibration"):
             self.declare_queryable(key(name), self._command(name, key(name)))
         self.declare_queryable(key("estop"), self._estop_query)
         self.declare_subscriber(key("setpoint"), self._setpoint_put)
         self.declare_subscriber(key("estop"), self._estop_put)
+        # the car's speed, for the envelope (model/speed.py): whom the router lets publish these
+        self.declare_subscriber(self.keys.key("estimator", "state"), self._speed_input(speed_of_state))
+        self.declare_subscriber(self.keys.key("gnss", "*", "fix"), self._speed_input(speed_of_fix))
         self.controller.start()
 
     def stop(self) -> None:
@@ -130,6 +141,21 @@ class SteeringService(Service):
         if payload is not None:
             self.controller.estop(payload)
 
+    def _speed_input(self, read):
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                source, t_ns, speed, sigma, valid = read(unpack(sample.payload.to_bytes(), "speed input"))
+            except InputError as exc:
+                self.health.error("speed_input_malformed")
+                self._refusals.log("speed input", f"a speed input not used: {exc}")
+                return
+            why = self.controller.speed(source, t_ns, speed, sigma, valid)
+            if why:
+                self.health.error(f"speed_refused_{why}")
+                if why != "not_valid":
+                    self._refusals.log(f"speed {why}", f"{source}'s speed refused ({why}): {speed!r} m/s")
+        return on_sample
+
     def _publish_state(self, state: dict) -> None:
         if self._state_pub.put(state):
             self.health.count("state")
@@ -154,6 +180,29 @@ def describe(kind: str, key: str) -> dict:
     usage, who = COMMANDS[kind]
     return {"status": "description", "key": key, "usage": usage, "who": who,
             "note": "nothing was done: commands act only on a query of this exact key"}
+
+
+_ESTIMATE = ESTIMATOR_STATE.reader("t", "position_valid", "speed_mps", "vel_var_m2ps2")
+_FIX = FIX.reader("t", "unit", "valid", "vel_ecef_mps", "vel_sigma_mps", "lat_deg", "lon_deg")
+
+
+def speed_of_state(state: dict) -> tuple[str, int, float, float, bool]:
+    """(source, stamp, horizontal speed, its sigma, valid) from an estimator state."""
+    t, valid, speed, var = _ESTIMATE(state)
+    return "estimator", t, speed, math.sqrt(max(var[0], var[1], 0.0)), valid
+
+
+def speed_of_fix(fix: dict) -> tuple[str, int, float, float, bool]:
+    """(unit, stamp, horizontal speed, its sigma, valid) from a GNSS fix: the velocity
+    without its vertical part; its largest sigma."""
+    t, unit, valid, vel, sigma, lat, lon = _FIX(fix)
+    if vel is None or sigma is None:
+        return unit, t, math.nan, math.nan, False
+    la, lo = math.radians(lat), math.radians(lon)
+    up = (math.cos(la) * math.cos(lo), math.cos(la) * math.sin(lo), math.sin(la))
+    v_up = sum(v * u for v, u in zip(vel, up))
+    horizontal = math.sqrt(max(0.0, sum(v * v for v in vel) - v_up * v_up))
+    return unit, t, horizontal, max(sigma), valid
 
 
 def main(argv=None) -> int:

@@ -101,3 +101,16 @@ def test_the_loop_at_3_to_5_mps_within_the_issue_bounds(controller):
     assert e.max() <= 1.0
     assert drive.checkpoint_miss_m.max() <= 2.0
     assert len(e) > 50 * 25                       # it did drive round: 155 m at <= 5 m/s, 50 Hz
+
+
+@pytest.mark.parametrize("controller", ["pure_pursuit", "stanley"])
+@pytest.mark.parametrize("speed_mps", [3.0, 5.0, 8.0])
+def test_the_pilot_plans_inside_the_steerings_speed_envelope(controller, speed_mps):
+    """Issue 26: every setpoint goes through the steering's own envelope (lateral
+    acceleration, jerk and slew by speed); the pilot plans inside the same limits, so the
+    envelope limits none of them, and the loop is followed as before it (docs/pilot.md)."""
+    drive = drive_loop(speed_mps, speed_mps, controller)
+    assert (drive.mode, drive.reason) == ("finished", "route end")
+    assert drive.setpoints > 50 * 15 and drive.limited == {}
+    e = np.abs(drive.cross_track_m)
+    assert math.sqrt(np.mean(e ** 2)) <= 0.25 and e.max() <= 0.6     # 8 m/s before the envelope: 0.21 / 0.51

@@ -19,7 +19,11 @@ from viena.services.steering.controller import ControllerSettings, SteeringContr
 from viena.services.steering.driver import DriveSettings, EposDrive
 from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.model.safety import Envelope
+from viena.services.steering.model.speed import SpeedSettings
 from viena.services.steering.simulator.epos_twin import EposTwin, TwinSettings
+
+#: a drive on a bench: no car, no speed source, and no speed assumed
+ON_A_BENCH = SpeedSettings(speed_conservative_mps=0.0)
 
 _channels = itertools.count()
 WALL_NS_AT_0 = 1_700_000_000_000_000_000
@@ -112,7 +116,7 @@ class SimSteering:
         self.states: list[dict] = []
         drive = EposDrive(DriveSettings(interface="virtual", channel=channel, **drive_kw), clock=self.clock)
         self.period_s = drive.settings.sync_period_s
-        self.ctl = SteeringController(drive, Envelope(), CalibrationSettings(sweep_settle_s=0.2), ControllerSettings(),
+        self.ctl = SteeringController(drive, Envelope(speed_settings=ON_A_BENCH), CalibrationSettings(sweep_settle_s=0.2), ControllerSettings(),
                                       on_state=self.states.append, clock=self.clock, wall_ns=self.clock.wall_ns)
         self.ctl.start(threads=False)
 

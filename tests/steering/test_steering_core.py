@@ -31,6 +31,7 @@ from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.model.core import ControllerSettings, Phase, SteeringCore
 from viena.services.steering.model.requests import parse_request
 from viena.services.steering.model.safety import Envelope
+from viena.services.steering.model.speed import SpeedSettings
 from viena.services.steering.model.state import sample
 
 STEERING = Path(__file__).resolve().parents[2] / "services/steering/model"
@@ -45,7 +46,7 @@ class Bench:
 
     def __init__(self):
         self.t = 100.0
-        self.core = SteeringCore(Envelope(), CalibrationSettings(sweep_settle_s=0.2))
+        self.core = SteeringCore(Envelope(speed_settings=SpeedSettings(speed_conservative_mps=0.0)), CalibrationSettings(sweep_settle_s=0.2))
         self.fb = Feedback(statusword=SW[ds402.SWITCH_ON_DISABLED], op_mode=POSITION_MODE, received_s=self.t)
         self.heartbeat_age_s = 0.05
         self.nmt_state: int | None = NMT_OPERATIONAL

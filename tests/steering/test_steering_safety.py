@@ -20,10 +20,13 @@ from viena.services.steering.model.safety import (
     SafetySettings,
     lease_hash,
 )
+from viena.services.steering.model.speed import SpeedSettings
 
 RANGE = (-29.0, 29.0)
 PERIOD = 0.01                         # the control loop's tick
 SAFE = SafetySettings()               # margin 1 deg, slew 30 deg/s, distance 4 deg, watchdog 0.5 s
+#: a drive on a bench: no speed source, and none assumed (test_steering_envelope.py has the speeds)
+BENCH = SpeedSettings(speed_conservative_mps=0.0)
 
 
 WALL_NS = 1_700_000_000_000_000_000  # the host's UTC time, for the setpoints' own stamps
@@ -65,7 +68,7 @@ class Timed:
 
 
 def make_envelope(clock=None, **kw) -> Timed:
-    env = Envelope(SafetySettings(**kw) if kw else SAFE)
+    env = Envelope(SafetySettings(**kw) if kw else SAFE, speed_settings=BENCH)
     env.set_range(*RANGE)
     return Timed(env, clock or FakeClock())
 
@@ -229,7 +232,7 @@ def test_a_second_client_can_neither_arm_nor_disarm_nor_steer():
 
 
 def test_arming_is_refused_uncalibrated_or_with_the_wheel_outside():
-    env = Envelope(SAFE)
+    env = Envelope(SAFE, speed_settings=BENCH)
     assert env.arm_refusal(0.0) == "not calibrated"
     env.set_range(*RANGE)
     assert "outside" in env.arm_refusal(28.5)

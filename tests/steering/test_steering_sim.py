@@ -14,6 +14,7 @@ from viena.services.steering.controller import SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
 from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.model.safety import Envelope
+from viena.services.steering.model.speed import SpeedSettings
 from viena.services.steering.simulator import make_epos_device
 
 
@@ -54,7 +55,7 @@ def steering(device):
     dev, car = device
     drive = EposDrive(DriveSettings(interface="slcan", channel=dev.url,
                                     bus_options={"sleep_after_open": 0, "timeout": 0.01}))
-    ctl = SteeringController(drive, Envelope(), CalibrationSettings(sweep_settle_s=0.2))
+    ctl = SteeringController(drive, Envelope(speed_settings=SpeedSettings(speed_conservative_mps=0.0)), CalibrationSettings(sweep_settle_s=0.2))
     ctl.start()
     ready = calibrated_with_a_person_at(dev.twin)
     try:

@@ -14,7 +14,7 @@ steering's refusal). Only `start` leaves finished or stopped for following.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from viena.common.rotation import wrap_angle
 from viena.common.settings import part
@@ -23,6 +23,14 @@ from viena.services.pilot.model.path import Path, Projection
 from viena.services.pilot.model.route import Route, RouteError, distance_to_route_m
 from viena.services.pilot.model.safety import SafetySettings, estimate_problem, start_problem, tracking_problem
 from viena.services.pilot.model.tracking import TRACKERS, Command, TrackingSettings
+from viena.services.steering.model.lateral import LateralSettings, figure, limits, scheduled
+
+#: the share of the steering's limits the pilot plans inside: a little room for the speed it
+#: sees and the steering's differing by a stamp, so that the steering never has to limit it
+PLAN_SHARE = 0.9
+#: the lateral offset the pure-pursuit lookahead must be able to take out inside the lateral
+#: acceleration limit (ISO 11270's figure: 1 m)
+CORRECTABLE_OFFSET_M = 1.0
 
 #: the mode with no route, or a route not started (a new route leaves the pilot in it)
 IDLE = "idle"
@@ -55,6 +63,11 @@ class Pilot:
         self._path: Path | None = None
         self._path_origin: tuple | None = None
         self._last_wheel_rad: float | None = None
+        self._last_ns: int | None = None
+        self.envelope: LateralSettings | None = None   # the steering's figures (its arm reply)
+        self._slew_deg_s = 0.0
+        self._armed_ns: int | None = None
+        self.steering_speed_mps: float | None = None   # the speed the steering's envelope uses now
 
     # -- events -----------------------------------------------------------------------------------
     def set_route(self, route: Route) -> None:
@@ -83,6 +96,17 @@ class Pilot:
 
     def on_estimate(self, est: Estimate) -> None:
         self.estimate = est
+
+    def on_armed(self, figures: dict | None, now_ns: int, target_deg: float | None = None) -> None:
+        """The steering armed for us, its target at `target_deg`: the rates start from there.
+        `figures` is its arm reply's `envelope` (None from an older steering: then the pilot
+        keeps only its own clamp). ValueError if malformed."""
+        self._armed_ns = now_ns
+        if target_deg is not None and math.isfinite(target_deg):
+            self._last_wheel_rad, self._last_ns = math.radians(target_deg), now_ns
+        if figures is not None:
+            self.envelope = LateralSettings.from_dict(figures)
+            self._slew_deg_s = figure(figures, "slew_deg_s")
 
     def start(self, now_ns: int) -> str | None:
         """Begin following; None, or the reason it refuses (also kept in `reason`)."""
@@ -119,11 +143,46 @@ class Pilot:
             return None
         est = self.estimate
         tracker = TRACKERS[self.settings.tracking.controller]
+        speed = max(est.speed_mps, self.steering_speed_mps or 0.0)
         self.command = tracker(self._path, self.where, est.x_m, est.y_m, est.yaw_rad,
-                               est.speed_mps, self.settings.tracking)
-        self._last_wheel_rad = self.command.wheel_rad
+                               est.speed_mps, self.settings.tracking, self._lookahead_floor_m(speed))
+        wheel = self._inside_envelope(self.command.wheel_rad, speed, now_ns)
+        self._last_wheel_rad, self._last_ns = wheel, now_ns
         self.setpoints += 1
-        return self.command.wheel_rad
+        return wheel
+
+    def _planning_limits(self, speed_mps: float, now_ns: int):
+        env = self.envelope
+        engaging = self._armed_ns is not None and (now_ns - self._armed_ns) * 1e-9 < env.engage_s
+        share = replace(env, lateral_accel_mps2=tuple(PLAN_SHARE * a for a in env.lateral_accel_mps2),
+                        lateral_jerk_mps3=tuple(PLAN_SHARE * j for j in env.lateral_jerk_mps3),
+                        **{k: PLAN_SHARE * getattr(env, k) for k in (
+                            "engage_lateral_accel_mps2", "engage_lateral_jerk_mps3", "slew_top_deg_s")})
+        return limits(speed_mps, share, PLAN_SHARE * self._slew_deg_s, engaging)
+
+    def _inside_envelope(self, wheel_rad: float, speed_mps: float, now_ns: int) -> float:
+        """The tracker's angle within the steering's limits at `speed_mps` (model/lateral.py,
+        the same definition the steering enforces), PLAN_SHARE of them: the widest angle,
+        and the rate since the last command."""
+        if self.envelope is None:
+            return wheel_rad
+        lim = self._planning_limits(speed_mps, now_ns)
+        deg = max(-lim.max_wheel_deg, min(lim.max_wheel_deg, math.degrees(wheel_rad)))
+        if self._last_wheel_rad is not None and self._last_ns is not None:
+            last = math.degrees(self._last_wheel_rad)
+            step = lim.rate_deg_s(max(abs(last), abs(deg))) * max(0.0, (now_ns - self._last_ns) * 1e-9)
+            deg = max(last - step, min(last + step, deg))
+        return math.radians(deg)
+
+    def _lookahead_floor_m(self, speed_mps: float) -> float:
+        """Pure pursuit's shortest lookahead at this speed: one that takes out
+        CORRECTABLE_OFFSET_M inside the lateral acceleration limit (curvature 2 x / ld^2 at
+        most a / v^2), so a small offset never asks for more than the envelope allows."""
+        if self.envelope is None:
+            return 0.0
+        env = self.envelope
+        accel = PLAN_SHARE * scheduled(speed_mps, env.lateral_speeds_mps, env.lateral_accel_mps2)
+        return speed_mps * math.sqrt(2.0 * CORRECTABLE_OFFSET_M / accel) if accel > 0 else 0.0
 
     # -- internals --------------------------------------------------------------------------------
     def _start_problem(self, now_ns: int) -> str | None:

@@ -49,9 +49,11 @@ class Command:
     lookahead_m: float
 
 
-def lookahead_m(speed_mps: float, s: TrackingSettings) -> float:
+def lookahead_m(speed_mps: float, s: TrackingSettings, floor_m: float = 0.0) -> float:
+    """The settings' lookahead at this speed, at least `floor_m` (the steering envelope's:
+    services/pilot/model/pilot.py), which may pass lookahead_max_m."""
     ld = s.lookahead_min_m + s.lookahead_gain_s * max(0.0, speed_mps)
-    return min(max(ld, s.lookahead_min_m), s.lookahead_max_m)
+    return max(min(max(ld, s.lookahead_min_m), s.lookahead_max_m), floor_m)
 
 
 def _clamp_wheel(angle_rad: float, s: TrackingSettings) -> float:
@@ -60,8 +62,8 @@ def _clamp_wheel(angle_rad: float, s: TrackingSettings) -> float:
 
 
 def pure_pursuit(path: Path, where: Projection, x_m: float, y_m: float, yaw_rad: float,
-                 speed_mps: float, s: TrackingSettings) -> Command:
-    ld = lookahead_m(speed_mps, s)
+                 speed_mps: float, s: TrackingSettings, lookahead_floor_m: float = 0.0) -> Command:
+    ld = lookahead_m(speed_mps, s, lookahead_floor_m)
     gx, gy = path.point_at(where.s_m + ld)
     dx, dy = gx - x_m, gy - y_m
     c, sn = math.cos(yaw_rad), math.sin(yaw_rad)
@@ -74,7 +76,8 @@ def pure_pursuit(path: Path, where: Projection, x_m: float, y_m: float, yaw_rad:
 
 
 def stanley(path: Path, where: Projection, x_m: float, y_m: float, yaw_rad: float,
-            speed_mps: float, s: TrackingSettings) -> Command:
+            speed_mps: float, s: TrackingSettings, lookahead_floor_m: float = 0.0) -> Command:
+    """(`lookahead_floor_m` is pure pursuit's; Stanley looks at the front axle.)"""
     fx, fy = x_m - s.wheelbase_m * math.sin(yaw_rad), y_m + s.wheelbase_m * math.cos(yaw_rad)
     front = path.project(fx, fy, near_s_m=where.s_m + s.wheelbase_m)
     heading_error = wrap_angle(front.path_yaw_rad - yaw_rad)

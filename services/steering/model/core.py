@@ -357,10 +357,13 @@ class SteeringCore:
 
     def _arm_reply(self, lease: str, fb: Feedback) -> dict:
         lo, hi = self.envelope.allowed_deg
-        return {"status": ACCEPTED, "reason": "", "lease": lease, "owner": self.envelope.owner,
+        env = self.envelope
+        return {"status": ACCEPTED, "reason": "", "lease": lease, "owner": env.owner,
                 "angle_deg": self.calibration.measured_deg(fb.position_qc),
-                "target_deg": self.envelope.target_deg, "range_deg": [lo, hi],
-                "watchdog_s": self.envelope.settings.watchdog_s}
+                "target_deg": env.target_deg, "range_deg": [lo, hi],
+                "watchdog_s": env.settings.watchdog_s,
+                # what a client plans inside (services/pilot): the speed envelope's figures
+                "envelope": {**env.lateral.as_dict(), "slew_deg_s": env.settings.slew_deg_s}}
 
     def _disarm(self, request: Disarm, now: float) -> dict:
         if not self.envelope.armed:
@@ -384,6 +387,8 @@ class SteeringCore:
         reply = {"status": d.status, "reason": d.reason, "target_deg": d.target_deg,
                  "angle_deg": None if measured is None else cal.measured_deg(fb.position_qc),
                  "limits": list(d.limits)}
+        if d.speed_mps is not None:
+            reply["speed_mps"], reply["speed_source"] = d.speed_mps, d.speed_source
         if d.goal_deg is not None and d.goal_deg != d.target_deg:
             reply["goal_deg"] = d.goal_deg
         return reply

@@ -10,14 +10,21 @@ the watchdog has tripped; `core.SteeringCore` sends and stops.
   lease (model/signing.py), or replayed (its `seq` not above the last one taken); a stale
   timestamp; any setpoint while disarmed or tripped.
 - Limited (the reply says "clamped" and which limit): the goal to the calibrated range
-  minus a margin; each target sent to the drive to the slew rate since the previous one,
-  and to a set distance from the measured angle. The target moves toward the goal at the
-  slew rate on every tick, so one setpoint is enough to turn the wheel smoothly.
+  minus a margin (`range`), and to the widest angle the car's speed allows
+  (`lateral_accel`, model/lateral.py); each target sent to the drive to the slew since the
+  previous one (`slew`, scheduled by speed), to the rate that keeps the lateral jerk in
+  its limit (`lateral_jerk`), and to a set distance from the measured angle (`distance`).
+  The target moves toward the goal on every tick, so one setpoint is enough to turn the
+  wheel smoothly; the speed is the one model/speed.py trusts now, or the conservative one.
+  A target left outside the lateral bound (the speed rose, or became unknown) goes back in
+  at the slew, never further out.
 - Watchdog: armed and no valid (accepted or clamped) setpoint for `watchdog_s` -> tripped;
   a new arm is required. Drive faults trip it too, with their cause.
 
-Invariants (tests/steering/test_steering_safety.py checks them for any input): every
-target lies in the allowed range, and moves by at most slew * dt from the one before.
+Invariants (tests/steering/test_steering_safety.py and test_steering_envelope.py check them
+for any input and any speed): every target lies in the allowed range and moves by at most
+the slew * dt from the one before; a target inside the lateral bound stays inside it and
+moves at most at the jerk's rate; one outside it only moves back in.
 """
 from __future__ import annotations
 
@@ -29,8 +36,10 @@ import secrets
 from dataclasses import dataclass, field
 
 from viena.common.settings import setting
+from viena.services.steering.model.lateral import LateralSettings, Limits, limits
 from viena.services.steering.model.requests import BadSetpoint, Setpoint
 from viena.services.steering.model.signing import macs_match
+from viena.services.steering.model.speed import Speed, SpeedSettings, SpeedSources
 
 log = logging.getLogger("viena.steering.safety")
 
@@ -40,7 +49,7 @@ ACCEPTED, CLAMPED, REJECTED = "accepted", "clamped", "rejected"
 @dataclass(frozen=True)
 class SafetySettings:
     margin_deg: float = setting(1.0, "targets stay this far inside the calibrated range")
-    slew_deg_s: float = setting(30.0, "fastest change of the target")
+    slew_deg_s: float = setting(30.0, "fastest change of the target, standing (slew_top_deg_s at top speed)")
     #: how far the target may lead the measured angle (the drive faults at 0x6065)
     max_distance_deg: float = setting(4.0, "furthest the target may lead the measured angle")
     watchdog_s: float = setting(0.5, "armed and no valid setpoint this long: quick stop")
@@ -57,6 +66,8 @@ class Decision:
     target_deg: float | None = None
     goal_deg: float | None = None
     limits: tuple[str, ...] = ()
+    speed_mps: float | None = None       # the speed the envelope used
+    speed_source: str = ""
 
 
 def lease_hash(lease: str | None) -> str | None:
@@ -68,8 +79,14 @@ def lease_hash(lease: str | None) -> str | None:
 @dataclass
 class Envelope:
     settings: SafetySettings = field(default_factory=SafetySettings)
+    lateral: LateralSettings = field(default_factory=LateralSettings)
+    speed_settings: SpeedSettings = field(default_factory=SpeedSettings)
 
     def __post_init__(self):
+        self.speeds = SpeedSources(self.speed_settings)
+        self.armed_t: float | None = None    # when the owner armed (the engaging limits run from it)
+        self._goal_used, self._goal_t = 0.0, 0.0   # the last goal as limited, and when: the rates' start
+        self.used: tuple[Speed, Limits] | None = None   # the speed and limits the target was last made at
         self.range_deg: tuple[float, float] | None = None
         self.armed = False
         self.lease: str | None = None
@@ -109,6 +126,13 @@ class Envelope:
     def owner(self) -> str | None:
         return lease_hash(self.lease)
 
+    def limits_now(self, now_s: float) -> tuple[Speed, Limits]:
+        """The speed trusted now, and the limits at it (the engaging ones for `engage_s`
+        after an arm)."""
+        speed = self.speeds.speed(now_s)
+        engaging = self.armed and self.armed_t is not None and now_s - self.armed_t < self.lateral.engage_s
+        return speed, limits(speed.mps, self.lateral, self.settings.slew_deg_s, engaging)
+
     # -- arming --------------------------------------------------------------------------
     def arm_refusal(self, measured_deg: float | None, lease: str | None = None) -> str | None:
         """Why an arm cannot happen now, or None if it can."""
@@ -132,8 +156,8 @@ class Envelope:
         if not self.armed:
             self.lease = secrets.token_urlsafe(16)
             self.last_seq = -1
-            self.goal_deg = self.target_deg = float(measured_deg)
-            self.target_t = now_s
+            self.goal_deg = self.target_deg = self._goal_used = float(measured_deg)
+            self.target_t = self.armed_t = self._goal_t = now_s
         self.armed = True
         self.last_valid_t = now_s
         self.tripped = ""
@@ -205,15 +229,25 @@ class Envelope:
             return Decision(REJECTED, "no position from the drive", requested)
         lo, hi = self.allowed_deg
         goal = min(max(requested, lo), hi)
-        limits = ("range",) if goal != requested else ()
-        target, more = self._next_target(goal, measured_deg, now)
+        acted = ("range",) if goal != requested else ()
+        previous, previous_t = self._goal_used, self._goal_t
         self.goal_deg = goal
+        target, ramp, speed, lim = self._next_target(goal, measured_deg, now)
         self.last_valid_t = now
-        limits += more
-        if limits:
-            reason = "; ".join(_LIMIT_TEXT[k](self.settings, lo, hi) for k in limits)
-            return Decision(CLAMPED, reason, requested, target, goal, limits)
-        return Decision(ACCEPTED, "", requested, target, goal)
+        goal = _within(goal, lim.max_wheel_deg)
+        acted += tuple(k for k in ramp if k in ("lateral_accel", "distance"))
+        # the rates judge the stream of goals, as a client sends them (the target between
+        # them ramps at the same rates, tick by tick: the drive never moves faster)
+        rate = lim.rate_deg_s(max(abs(previous), abs(goal)))
+        if abs(goal - previous) > rate * (now - previous_t + RATE_SLACK_S):
+            acted += ("slew" if rate >= lim.slew_deg_s else "lateral_jerk",)
+        self._goal_used, self._goal_t = goal, now
+        if acted:
+            reason = "; ".join(_LIMIT_TEXT[k](self.settings, lo, hi, lim, target) for k in acted)
+            if speed.problem:
+                reason += f" (speed unknown: {speed.problem}; assumed {speed.mps:.1f} m/s)"
+            return Decision(CLAMPED, reason, requested, target, goal, acted, lim.speed_mps, speed.source)
+        return Decision(ACCEPTED, "", requested, target, goal, (), lim.speed_mps, speed.source)
 
     def _absurd(self, requested: float) -> str | None:
         """Finite but impossible: beyond twice the wheel's range is a bug, not a wish, and is
@@ -245,7 +279,7 @@ class Envelope:
         if measured_deg is None or not math.isfinite(measured_deg):
             self.trip("no position from the drive")
             return None, "no position from the drive"
-        target, _ = self._next_target(self.goal_deg, measured_deg, now_s)
+        target = self._next_target(self.goal_deg, measured_deg, now_s)[0]
         return target, ""
 
     def _watchdog(self, now: float) -> str:
@@ -259,28 +293,59 @@ class Envelope:
         self.trip(reason)
         return reason
 
-    def _next_target(self, goal: float, measured: float, now: float) -> tuple[float, tuple[str, ...]]:
-        """Move the target toward `goal`: within the range, the slew since the last target,
-        and (as far as the slew allows) the distance from the measured angle."""
+    def _next_target(self, goal: float, measured: float, now: float) -> tuple[float, tuple[str, ...], Speed, Limits]:
+        """Move the target toward `goal`: within the range and the lateral bound at the
+        speed trusted now, at the slew or the jerk's rate since the last target (at the slew
+        back inside the bound when it shrank), and as far as that allows near the measured
+        angle. Returns the target, the limits that acted, the speed and its limits."""
         s = self.settings
+        speed, lim = self.limits_now(now)
         lo, hi = self.allowed_deg
-        step = s.slew_deg_s * max(0.0, now - self.target_t)
-        win_lo, win_hi = max(lo, self.target_deg - step), min(hi, self.target_deg + step)
-        limits: tuple[str, ...] = ()
-        target = min(max(goal, win_lo), win_hi)
-        if target != goal:
-            limits += ("slew",)
+        b_lo, b_hi = max(lo, -lim.max_wheel_deg), min(hi, lim.max_wheel_deg)
+        if b_lo > b_hi:                              # a range that does not hold 0: its end nearest it
+            b_lo = b_hi = lo if lo > 0 else hi
+        prev, dt = self.target_deg, max(0.0, now - self.target_t)
+        acted: tuple[str, ...] = ()
+        wanted = min(max(goal, b_lo), b_hi)
+        if wanted != goal and min(max(goal, lo), hi) == goal:
+            acted += ("lateral_accel",)
+        slew_step = lim.slew_deg_s * dt
+        if prev > b_hi:                              # outside: back in at the slew, never further out
+            win_lo, win_hi, rate_limit = max(b_lo, prev - slew_step), prev, "slew"
+        elif prev < b_lo:
+            win_lo, win_hi, rate_limit = prev, min(b_hi, prev + slew_step), "slew"
+        else:
+            jerk_rate = lim.jerk_rate_deg_s(max(abs(prev), abs(wanted)))
+            # the distance clamp may take the target past `wanted` (toward the wheel): the
+            # rate at the widest angle the window reaches, so no end of it turns too fast
+            reach = abs(prev) + min(lim.slew_deg_s, jerk_rate) * dt
+            jerk_rate = min(jerk_rate, lim.jerk_rate_deg_s(reach))
+            rate_limit = "slew" if lim.slew_deg_s <= jerk_rate else "lateral_jerk"
+            step = min(lim.slew_deg_s, jerk_rate) * dt
+            win_lo, win_hi = max(b_lo, prev - step), min(b_hi, prev + step)
+        target = min(max(wanted, win_lo), win_hi)
+        if target != wanted:
+            acted += (rate_limit,)
         near_lo, near_hi = measured - s.max_distance_deg, measured + s.max_distance_deg
         if not near_lo <= target <= near_hi:
-            limits += ("distance",)
+            acted += ("distance",)
             both_lo, both_hi = max(win_lo, near_lo), min(win_hi, near_hi)
             if both_lo <= both_hi:
                 target = min(max(target, both_lo), both_hi)
             else:                      # the wheel is far off: go toward it as fast as allowed
                 target = win_hi if near_lo > win_hi else win_lo
         self.target_deg, self.target_t = target, now
-        return target, limits
+        self.used = (speed, lim)
+        return target, acted, speed, lim
 
+
+def _within(angle_deg: float, bound_deg: float) -> float:
+    return min(max(angle_deg, -bound_deg), bound_deg)
+
+
+#: a goal may arrive this much sooner than its rate allows (a setpoint stream's jitter, a
+#: control tick) before the rate is said to have acted
+RATE_SLACK_S = 0.02
 
 #: what a rejection is counted as: a fixed set, so a client's text never makes a new counter
 REFUSAL_CAUSES = ("absurd", "not armed", "not signed", "replayed", "stale", "stamped", "no position")
@@ -291,9 +356,15 @@ def refusal_cause(reason: str) -> str:
 
 
 _LIMIT_TEXT = {
-    "range": lambda s, lo, hi: f"range: limited to {lo:.1f}..{hi:.1f} deg",
-    "slew": lambda s, lo, hi: f"slew: {s.slew_deg_s:g} deg/s",
-    "distance": lambda s, lo, hi: f"distance: at most {s.max_distance_deg:g} deg from the measured angle",
+    "range": lambda s, lo, hi, lim, target: f"range: limited to {lo:.1f}..{hi:.1f} deg",
+    "lateral_accel": lambda s, lo, hi, lim, target: (
+        f"lateral_accel: at most {lim.max_wheel_deg:.1f} deg at {lim.speed_mps:.1f} m/s "
+        f"({lim.lateral_accel_mps2:g} m/s^2{', engaging' if lim.engaging else ''})"),
+    "lateral_jerk": lambda s, lo, hi, lim, target: (
+        f"lateral_jerk: turning at most {lim.jerk_rate_deg_s(target):.3g} deg/s at {lim.speed_mps:.1f} m/s "
+        f"({lim.lateral_jerk_mps3:g} m/s^3{', engaging' if lim.engaging else ''})"),
+    "slew": lambda s, lo, hi, lim, target: f"slew: {lim.slew_deg_s:.3g} deg/s at {lim.speed_mps:.1f} m/s",
+    "distance": lambda s, lo, hi, lim, target: f"distance: at most {s.max_distance_deg:g} deg from the measured angle",
 }
 
 

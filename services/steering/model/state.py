@@ -2,6 +2,7 @@
 schema, and how it is read off the core."""
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 from viena.common.display import fields_view
@@ -33,11 +34,19 @@ STATE = Schema("viena.steering.state/1", {
     "limits": F.list(F.str),                  # limits active on the last setpoint
     "decision": F.optional(F.map),            # {"status", "reason"} of the last setpoint
     "calibration": F.map,                     # state, min/max/zero/span qc, range_deg, problem
+    # the speed envelope now (model/lateral.py, model/speed.py); optional: older states lack them
+    "speed_mps": F.optional(F.float),         # the speed the envelope uses
+    "speed_source": F.optional(F.str),        # estimator[+gnss0...] or conservative
+    "speed_problem": F.optional(F.str),       # why conservative ("" when the sources are used)
+    "max_wheel_deg": F.optional(F.float),     # widest target either way at that speed (None: no limit)
+    "max_rate_deg_s": F.optional(F.float),    # fastest target rate there (slew or lateral jerk)
+    "engaging": F.optional(F.bool),           # the stricter limits of the first seconds after an arm
 })
 
 #: the fields a person at the monitor looks at first; the rest follow as they come
 MONITOR_FIRST = ("phase", "armed", "owner", "angle_deg", "target_deg", "goal_deg", "watchdog",
-                 "trip", "fault", "drive_heartbeat", "ds402", "decision", "limits")
+                 "trip", "fault", "drive_heartbeat", "ds402", "decision", "limits", "speed_mps",
+                 "speed_source", "speed_problem", "max_wheel_deg", "max_rate_deg_s")
 
 
 def monitor_view(state: dict) -> dict[str, str]:
@@ -52,6 +61,9 @@ def sample(core: SteeringCore, now: float, wall_ns: int, reading: DriveReading, 
     cal, env = core.calibration, core.envelope
     fresh = core.fresh(fb, now)
     last = env.last
+    # armed: the speed and limits the target was made at (a tick ago at most); else as of now
+    speed, lim = env.used if env.armed and env.used is not None else env.limits_now(now)
+    rate = lim.rate_deg_s(env.target_deg if env.armed and env.target_deg is not None else 0.0)
     return {
         "t": wall_ns,
         "seq": seq,
@@ -74,4 +86,10 @@ def sample(core: SteeringCore, now: float, wall_ns: int, reading: DriveReading, 
         "limits": list(last.limits) if last is not None else [],
         "decision": {"status": last.status, "reason": last.reason} if last is not None else None,
         "calibration": core.calibration_state(),
+        "speed_mps": speed.mps,
+        "speed_source": speed.source,
+        "speed_problem": speed.problem,
+        "max_wheel_deg": lim.max_wheel_deg if math.isfinite(lim.max_wheel_deg) else None,
+        "max_rate_deg_s": rate,
+        "engaging": lim.engaging,
     }
