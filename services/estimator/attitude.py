@@ -88,6 +88,7 @@ class Attitude:
         self._align = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]  # n, f, w, m, n_mag
         self._align_t0: int | None = None
         self._align_speed = (0.0, 0.0)      # the speed at the first and the last sample
+        self._align_moving = False          # the receivers' speeds said the car moved (doppler.py)
 
     def realign(self) -> None:
         """Roll and pitch are no longer to be trusted (a long gap, another IMU, GNSS disagreeing
@@ -96,7 +97,7 @@ class Attitude:
 
     # -- alignment -----------------------------------------------------------------------------
     def gather(self, t: int, fx, fy, fz, gx, gy, gz, mag, keep_yaw: bool, speed: float = 0.0,
-               speed_known: bool = True) -> None:
+               speed_known: bool = True, gnss_moving: bool = False) -> None:
         """Average the specific force (and field, rate) over align_s, then set the attitude;
         `keep_yaw`: a realignment keeps the yaw that the heading filter knew; `speed`: the
         car's (GNSS) speed, when it realigns while driving: the turn's acceleration
@@ -104,15 +105,24 @@ class Attitude:
         force, and the gyro's mean is a turn, not its bias. `speed_known`: the filter's
         speed is known well (GNSS velocity); else its change is not taken off, and unless
         the car plainly stood, the tilt found is only as good as a car's acceleration
-        allows (`MOVING_ALIGN_SIGMA_DEG`)."""
+        allows (`MOVING_ALIGN_SIGMA_DEG`). `gnss_moving`: the receivers, used or not yet,
+        all report a speed (standstill.py): the car did not stand, however plainly the IMU
+        says it did (a smooth straight reads like a car parked)."""
         a = self._align
+        if self._align_t0 is not None and speed_known and not self._align_known and self._align_moving:
+            # a window that cannot align (the car moved, its speed unknown): its speed is
+            # known from now, so a new one starts now rather than at this one's end
+            a[:] = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]
+            self._align_t0 = None
         if self._align_t0 is None:
             self._align_t0 = t
             self._align_speed = (speed, speed)
             self._align_known = speed_known
+            self._align_moving = gnss_moving
         else:
             self._align_speed = (self._align_speed[0], speed)
             self._align_known = self._align_known and speed_known
+            self._align_moving = self._align_moving or gnss_moving
         if a[0] == 0:
             self._align_sq = 0.0
         self._align_sq += fx * fx + fy * fy + fz * fz
@@ -134,12 +144,14 @@ class Attitude:
         m = (a[7] / a[10], a[8] / a[10], a[9] / a[10]) if a[10] else None
         lim = math.radians(s.max_gyro_bias_dps)
         # the car stood (or its speed was known and its acceleration came off): 1 deg;
-        # else the mean specific force holds the car's own acceleration, unknown
+        # else the mean specific force holds the car's own acceleration, unknown. With its
+        # speed not known, the IMU says whether it stood, unless the receivers (used or
+        # not yet) say it moved: a smooth straight reads like a stop
         norm = math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2)
         spread = math.sqrt(max(0.0, self._align_sq / n - (a[1] ** 2 + a[2] ** 2 + a[3] ** 2) / (n * n)))
-        stood = (max(v0, v1) < s.still_speed_mps and known) or (
-            not known and abs(norm - GRAVITY) < STILL_NORM_MPS2 and spread < STILL_NORM_MPS2
-            and math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) < lim)
+        quiet = (abs(norm - GRAVITY) < STILL_NORM_MPS2 and spread < STILL_NORM_MPS2
+                 and math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) < lim)
+        stood = (known and max(v0, v1) < s.still_speed_mps) or (not known and quiet and not self._align_moving)
         if not (stood or known) and self._align_waited < ALIGN_WAIT_S:
             # a moving car whose speed nobody knows yet: wait for GNSS's (a car accelerating
             # at 1.4 m/s^2 would be aligned 8 deg pitched), or align anyway after a while
@@ -147,7 +159,7 @@ class Attitude:
             self._align = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]
             self._align_t0 = None
             return
-        if max(v0, v1) < s.still_speed_mps and math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) < lim:
+        if stood and max(v0, v1) < s.still_speed_mps and math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) < lim:
             self.gyro_bias = [max(-lim, min(lim, self.gyro_bias[k] + w[k])) for k in range(3)]
         use_mag = m is not None and self.use_mag and self.mag_plausible(m, *f)
         yaw = self.yaw

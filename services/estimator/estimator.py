@@ -50,6 +50,9 @@ from viena.services.estimator.timeline import NEW_TIMELINE, NewTimeline, Timelin
 _G = 9.80665
 #: a step between IMU samples longer than this and the attitude aligns again
 _REALIGN_GAP_S = 2.0
+#: an alignment knows the car's speed when a GNSS velocity came this recently (ns): within a
+#: second, or a 1 Hz receiver's never would be, a fix always being up to 1 s old
+_ALIGN_SPEED_AGE_NS = 1_500_000_000
 
 
 class Estimator:
@@ -72,7 +75,7 @@ class Estimator:
             s.accel_psd, s.accel_bias_walk_psd, s.free_accel_psd, tuple(s.accel_bias_sigma_mps2),
             s.tilt_walk_psd, math.radians(s.tilt_sigma_deg), s.gnss_bias_tau_s,
             s.gnss_common_fraction, s.gnss_consider_errors)
-        self._quiet = (None, None)          # standstill thresholds learnt (kept across resets)
+        self._quiet = (None, None, False)   # standstill thresholds learnt (kept across resets)
         self.accel_enu = (0.0, 0.0, 0.0)    # the car's acceleration by the IMU, last sample
         self.counters = Counters()
         self.timeline = Timeline(s, clock)
@@ -198,7 +201,7 @@ class Estimator:
         self.heading = Heading(s, self.attitude, self.counters, self.log, self.consistency)
         self.kf = NavKalman(self._noise, tilt=True)
         if getattr(self, "standstill", None) is not None:
-            self._quiet = self.standstill.thresholds
+            self._quiet = self.standstill.learnt
         self.standstill = Standstill(s, self._quiet)
         self.constraints = Constraints(s, self.counters.counts, self.mount)
         self._mag = None                    # the last magnetometer reading
@@ -276,7 +279,8 @@ class Estimator:
             speed_still = (g.speed_t is not None and g.speed < v and t - g.speed_t < self.gnss_timeout_ns
                            and kx[3] * kx[3] + kx[4] * kx[4] < v * v)
         standstill = self.standstill
-        standstill.update(dt, gx, gy, gz, fx, fy, fz, att.rot, self._gravity, speed_still, att)
+        standstill.update(dt, gx, gy, gz, fx, fy, fz, att.rot, self._gravity, speed_still, att,
+                          self.gnss.doppler.span(t))
         heading = self.heading
         history = self.history
         if mag is not None:
@@ -286,11 +290,12 @@ class Estimator:
             speed, known = 0.0, False
             if kf.initialized:
                 speed = math.hypot(kx[3], kx[4])
-                # a GNSS velocity came within the last second (the filter's own variance
+                # a GNSS velocity came within the last fix or so (the filter's own variance
                 # grows fast while nothing drives it during an alignment)
                 speed_t = self.gnss.speed_t
-                known = speed_t is not None and 0 <= t - speed_t < 1_000_000_000
-            att.gather(t, fx, fy, fz, gx, gy, gz, mag, heading.filter.valid, speed, known)
+                known = speed_t is not None and 0 <= t - speed_t < _ALIGN_SPEED_AGE_NS
+            att.gather(t, fx, fy, fz, gx, gy, gz, mag, heading.filter.valid, speed, known,
+                       standstill.gnss_moving)
             if kf.initialized:
                 if dt_state > 0.0:
                     kf.move(0.0, 0.0, 0.0, dt_state)

@@ -32,6 +32,7 @@ import numpy as np
 from viena.common.geodesy import LocalFrame
 from viena.services.estimator.admission import Admission
 from viena.services.estimator.attitude import cross, rotate
+from viena.services.estimator.doppler import DopplerSpeeds
 from viena.services.estimator.gnss_noise import WhiteShare
 from viena.services.estimator.kalman import Diverged
 from viena.services.estimator.timing import OffsetHint
@@ -89,6 +90,7 @@ class GnssUpdate:
         self.level: dict[str, tuple] = {}       # each receiver's variance, smoothed, and when
         self.timing = OffsetHint()              # what the residuals say of the IMU's clock
         self.admission = Admission(s)           # which receivers are in use (admission.py)
+        self.doppler = DopplerSpeeds(s.admit_max_speed_sigma_mps)  # every receiver's speed, used or not
         self.restart()
 
     def restart(self) -> None:
@@ -107,6 +109,7 @@ class GnssUpdate:
         """A new timeline: the receivers' times so far mean nothing."""
         self.last_fix_t.clear()
         self.used_fix_t.clear()
+        self.doppler.forget()
         self.timing = OffsetHint()
 
     def live_units(self, t: int, timeout_ns: int) -> list[str]:
@@ -133,6 +136,7 @@ class GnssUpdate:
             return
         unit = fix.unit
         self.last_fix_t[unit] = max(fix.t, self.last_fix_t.get(unit, fix.t))
+        self.doppler.add(fix)
         # A receiver's errors are correlated over a second or more: fixes at 20 Hz are
         # not 20 independent measurements a second. Fewer cost less and lose nothing.
         used = self.used_fix_t.get(unit)

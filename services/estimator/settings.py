@@ -53,10 +53,11 @@ class EstimatorSettings:
                                               "velocity has shown it (mount.py); 0: the mount is "
                                               "calibrated, nothing is learnt")
     zupt_sigma_mps: float = setting(0.02, "sigma of a zero-velocity update")
-    still_gyro_radps: float = setting(0.0, "standstill: gyro rms below this (0: learnt, 3 x what the "
-                                           "first align_s parked show, within 0.01 .. 0.05) ...")
+    still_gyro_radps: float = setting(0.0, "standstill: gyro rms below this (0: learnt, 3 x what "
+                                           "align_s parked show, GNSS not saying it moves, within "
+                                           "0.01 .. 0.05) ...")
     still_accel_mps2: float = setting(0.0, "... and specific force this close to gravity (0: learnt, "
-                                           "3 x the first align_s parked, within 0.2 .. 1.0) ...")
+                                           "3 x align_s parked, within 0.2 .. 1.0) ...")
     still_speed_mps: float = setting(0.3, "... and GNSS and filter speeds below this")
     gate_chi2: float = setting(16.27, "innovation test (3 dof, 99.9 %)")
     max_pos_sigma_m: float = setting(50.0, "fixes with a larger position sigma are not used")
