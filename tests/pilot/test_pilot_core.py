@@ -198,3 +198,33 @@ def test_estimate_read_from_an_estimator_state():
     from viena.common.errors import SampleError
     with pytest.raises(SampleError, match="enu_m"):
         estimate_of({**state, "enu_m": [float("nan"), 0.0, 0.0]})
+
+
+def test_the_pilot_plans_inside_the_envelope_the_steering_gave():
+    """Issue 26: 1.4 m off the route at 14 m/s a tracker asks for several degrees; the pilot
+    sends no more than 90 % of what the steering's envelope allows at the speed (the higher
+    of its estimate's and the steering's), and turns toward it no faster than its rate."""
+    from viena.services.steering.model.lateral import LateralSettings, lateral_accel_mps2, limits
+
+    envelope = LateralSettings()
+    pilot = following(x=1.4, y=12.0, speed_mps=14.0)
+    pilot.on_armed({**envelope.as_dict(), "slew_deg_s": 30.0}, T0, 0.0)
+    pilot.steering_speed_mps = 14.3
+    angles = []
+    for k in range(1, 200):                      # the car held where it is: the command's limits alone
+        pilot.on_estimate(est(T0 + k * 20 * MS, x=1.4, y=12.0, speed_mps=14.0))
+        angles.append(math.degrees(pilot.tick(T0 + k * 20 * MS)))
+    allowed = limits(14.3, envelope, 30.0)
+    assert max(abs(a) for a in angles) <= 0.9 * allowed.max_wheel_deg + 1e-9
+    assert max(lateral_accel_mps2(14.3, a, envelope.wheelbase_m) for a in angles) < 3.0
+    steps = [abs(b - a) / 0.02 for a, b in zip([0.0, *angles], angles)]
+    assert max(steps) <= allowed.rate_deg_s(max(abs(a) for a in angles)) + 1e-9
+    assert angles[-1] > 0.9 * 0.9 * allowed.max_wheel_deg         # it does turn, as far as it may
+
+
+def test_an_unreadable_envelope_is_refused():
+    pilot = following()
+    with pytest.raises(ValueError):
+        pilot.on_armed({"lateral_accel_mps2": [float("nan")], "slew_deg_s": 30.0}, T0, 0.0)
+    with pytest.raises(ValueError):
+        pilot.on_armed({"lateral_speeds_mps": [8.0], "lateral_accel_mps2": [7.0, 3.0], "slew_deg_s": 30.0}, T0)

@@ -14,7 +14,7 @@ steering's refusal). Only `start` leaves finished or stopped for following.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from viena.common.rotation import wrap_angle
 from viena.common.settings import part
@@ -23,7 +23,7 @@ from viena.services.pilot.model.path import Path, Projection
 from viena.services.pilot.model.route import Route, RouteError, distance_to_route_m
 from viena.services.pilot.model.safety import SafetySettings, estimate_problem, start_problem, tracking_problem
 from viena.services.pilot.model.tracking import TRACKERS, Command, TrackingSettings
-from viena.services.steering.model.lateral import LateralSettings, figure, limits, scheduled
+from viena.services.steering.model.lateral import LateralSettings, Limits, figure, limits, scheduled
 
 #: the share of the steering's limits the pilot plans inside: a little room for the speed it
 #: sees and the steering's differing by a stamp, so that the steering never has to limit it
@@ -151,14 +151,10 @@ class Pilot:
         self.setpoints += 1
         return wheel
 
-    def _planning_limits(self, speed_mps: float, now_ns: int):
+    def _planning_limits(self, speed_mps: float, now_ns: int) -> Limits:
         env = self.envelope
         engaging = self._armed_ns is not None and (now_ns - self._armed_ns) * 1e-9 < env.engage_s
-        share = replace(env, lateral_accel_mps2=tuple(PLAN_SHARE * a for a in env.lateral_accel_mps2),
-                        lateral_jerk_mps3=tuple(PLAN_SHARE * j for j in env.lateral_jerk_mps3),
-                        **{k: PLAN_SHARE * getattr(env, k) for k in (
-                            "engage_lateral_accel_mps2", "engage_lateral_jerk_mps3", "slew_top_deg_s")})
-        return limits(speed_mps, share, PLAN_SHARE * self._slew_deg_s, engaging)
+        return limits(speed_mps, env.scaled(PLAN_SHARE), PLAN_SHARE * self._slew_deg_s, engaging)
 
     def _inside_envelope(self, wheel_rad: float, speed_mps: float, now_ns: int) -> float:
         """The tracker's angle within the steering's limits at `speed_mps` (model/lateral.py,

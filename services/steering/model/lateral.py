@@ -26,7 +26,7 @@ steering service gives in its arm reply (`as_dict`, `from_dict`).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 
 from viena.common.settings import setting
 
@@ -56,6 +56,15 @@ class LateralSettings:
     slew_top_deg_s: float = setting(10.0, "the slew at top_speed_mps (slew_deg_s standing, linear between)")
     top_speed_mps: float = setting(15.0, "the car's top speed: where the slew schedule ends, and the speed "
                                          "assumed when it is not known")
+
+    def scaled(self, share: float) -> LateralSettings:
+        """The same envelope with every acceleration, jerk and top slew times `share`: what
+        a client plans inside, to leave the steering room."""
+        return replace(self, lateral_accel_mps2=tuple(share * a for a in self.lateral_accel_mps2),
+                       lateral_jerk_mps3=tuple(share * j for j in self.lateral_jerk_mps3),
+                       engage_lateral_accel_mps2=share * self.engage_lateral_accel_mps2,
+                       engage_lateral_jerk_mps3=share * self.engage_lateral_jerk_mps3,
+                       slew_top_deg_s=share * self.slew_top_deg_s)
 
     def as_dict(self) -> dict:
         """The figures, for the arm reply: what a client plans inside."""
