@@ -13,7 +13,12 @@ restarts each. Asserted, per kill:
   wheel does follow it while the setpoints are accepted.)
 - the program is back (a new pid, RUNNING) and every key that flowed before flows again
   within 5 s of the kill;
-- the estimator's horizontal error (against the truth) is back under 2 m within 30 s;
+- the estimator's horizontal error (against the truth) is back under 2 m within 30 s. The
+  receivers are made better than the car's own here (GNSS_CEP_M, 0.5 m against 1.8 m):
+  since the GNSS twin's errors became the real receiver's (jumps at satellite changes,
+  multipath, heavy tails), an estimator restarted mid-drive starts from, and keeps, the
+  receivers' error of the moment, 1.3-1.9 m with the car's receivers, so 2 m judged the
+  sky. With these it judges whether the estimator comes back;
 - the recorder (`viena record`, not supervised) lost no sample that a second subscriber
   saw, and the samples missing while the router was gone are reported as the gap.
 
@@ -46,6 +51,8 @@ CAR = "viena/elettra"
 BACK_WITHIN_S = 5.0
 ESTIMATOR_BACK_WITHIN_S = 30.0
 ESTIMATOR_ERROR_M = 2.0
+#: the sim's receivers' circular error probable (the car's own: 1.8 m); see the docstring
+GNSS_CEP_M = 0.5
 #: the pilot's command: a triangle wave, at a steady 6.4 deg/s well inside the slew limit,
 #: so that a wheel standing still matches it for at most ~0.3 s (at a turn), never 0.6 s
 AMPLITUDE_DEG, PERIOD_S, PILOT_RATE_HZ = 4.0, 5.0, 20.0
@@ -325,7 +332,7 @@ def test_every_program_killed_in_turn(tmp_path, capsys):
     rng.shuffle(order)
     procs = Processes()
     run = tmp_path / "run"
-    with sim_profile_up(run) as (env, router):
+    with sim_profile_up(run, VIENA_SIM_GNSS_CEP_M=str(GNSS_CEP_M)) as (env, router):
         sup = supervisor(run)
         with open_session(router) as watch_session, open_session(router) as pilot_session:
             watcher = Watcher(watch_session)
@@ -406,7 +413,8 @@ def _chaos(env, router, sup, watcher, pilot_session, procs, order, rng, tmp_path
     for k in kills:
         assert k.back_s is not None and k.flowing_s is not None and k.flowing_s <= BACK_WITHIN_S, k
         assert k.tracked_invalid_s <= pilot.watchdog_s + 0.1, k
-        assert k.estimator_s is not None and k.estimator_s <= ESTIMATOR_BACK_WITHIN_S, k
+        assert k.estimator_s is not None and k.estimator_s <= ESTIMATOR_BACK_WITHIN_S, \
+            f"{k.program}: the estimator not back under {ESTIMATOR_ERROR_M} m: {k.estimator_note} ({k})"
     assert lost == [], lost[:10]
     assert recording.complete and not recording.problems
 
