@@ -9,11 +9,11 @@ gives a lateral jerk j = v^2 / (L cos^2 delta) d(delta)/dt. Limiting a and j giv
 
 both wide open when the car stands and tightening with v^2. The lateral acceleration is
 and the jerk are scheduled by speed, as Autoware's vehicle_cmd_gate does: from 13 m/s the
-driver-assist standards' 3 m/s^2 and 5 m/s^3 (ISO 11270 and ISO 15622), up to 8 m/s 7 m/s^2
+driver-assist standards' 3 m/s^2 and 5 m/s^3 (ISO 11270 and ISO 15622), up to 10 m/s 7 m/s^2
 and 15 m/s^3 (a campus loop's 12 m bends at 8 m/s need 5.3 m/s^2, and a tracker's turn into
-them more), linear between: at 14 m/s the wheel may turn 1.7 deg, at 8 m/s 13.3 deg, at
-4 m/s 44 deg (the range's end first; each less `wheel_margin_deg`, what the calibration
-and the drive's following may be off).
+them more, at a speed known to +-2 sigma), linear between: at 14 m/s the wheel may turn
+1.7 deg, at 8 m/s 13.3 deg, at 4 m/s 44 deg (the range's end first; each less
+`wheel_margin_deg`, what the calibration and the drive's following may be off).
 The slew, the drive's mechanical rate, is scheduled too: from
 `slew_deg_s` standing to `slew_top_deg_s` at top speed. For the first `engage_s` after an
 arm a stricter pair holds (Autoware's vehicle_cmd_gate limits harder while engaging), so
@@ -42,7 +42,7 @@ SCHEDULES = ("lateral_speeds_mps", "lateral_accel_mps2", "lateral_jerk_mps3")
 class LateralSettings:
     """The speed-scheduled limits on the wheel (docs/steering.md#the-speed-envelope)."""
     wheelbase_m: float = setting(2.2, "the car's wheelbase (the bicycle model's L)")
-    lateral_speeds_mps: tuple[float, ...] = setting([8.0, 13.0], "the speeds the lateral limits are given at "
+    lateral_speeds_mps: tuple[float, ...] = setting([10.0, 13.0], "the speeds the lateral limits are given at "
                                                     "(linear between, the ends held beyond)")
     lateral_accel_mps2: tuple[float, ...] = setting([7.0, 3.0], "largest lateral acceleration a target may "
                                                     "ask for, at each of lateral_speeds_mps")
