@@ -85,10 +85,14 @@ class Attitude:
         self._align_known = True
         self._align_sq = 0.0
         self._align_waited = 0.0            # moving, speed unknown: windows thrown away (s)
-        self._align = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]  # n, f, w, m, n_mag
-        self._align_t0: int | None = None
+        self._new_window()
         self._align_speed = (0.0, 0.0)      # the speed at the first and the last sample
         self._align_moving = False          # the receivers' speeds said the car moved (doppler.py)
+
+    def _new_window(self) -> None:
+        """Alignment starts gathering again, from the next sample."""
+        self._align = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]  # n, f, w, m, n_mag
+        self._align_t0: int | None = None
 
     def realign(self) -> None:
         """Roll and pitch are no longer to be trusted (a long gap, another IMU, GNSS disagreeing
@@ -108,12 +112,11 @@ class Attitude:
         allows (`MOVING_ALIGN_SIGMA_DEG`). `gnss_moving`: the receivers, used or not yet,
         all report a speed (standstill.py): the car did not stand, however plainly the IMU
         says it did (a smooth straight reads like a car parked)."""
-        a = self._align
         if self._align_t0 is not None and speed_known and not self._align_known and self._align_moving:
             # a window that cannot align (the car moved, its speed unknown): its speed is
             # known from now, so a new one starts now rather than at this one's end
-            a[:] = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]
-            self._align_t0 = None
+            self._new_window()
+        a = self._align
         if self._align_t0 is None:
             self._align_t0 = t
             self._align_speed = (speed, speed)
@@ -156,8 +159,7 @@ class Attitude:
             # a moving car whose speed nobody knows yet: wait for GNSS's (a car accelerating
             # at 1.4 m/s^2 would be aligned 8 deg pitched), or align anyway after a while
             self._align_waited += span_s
-            self._align = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0]
-            self._align_t0 = None
+            self._new_window()
             return
         if stood and max(v0, v1) < s.still_speed_mps and math.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2) < lim:
             self.gyro_bias = [max(-lim, min(lim, self.gyro_bias[k] + w[k])) for k in range(3)]

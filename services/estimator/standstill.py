@@ -54,10 +54,8 @@ class Standstill:
         self.moving_mps = max(s.still_speed_mps, 2.0 * s.admit_max_drift_mps)
         self.gnss_moving = False         # every receiver heard reports more than moving_mps
         self._learn_s = s.align_s
-        self._sums = [0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-        self._t_learnt = 0.0
+        self._restart_learning()         # the window's sums: n, sums and squares of six figures
         self._t_seen = 0.0               # IMU time seen while learning (the first align_s only gather)
-        self._gnss_parked = False        # a receiver said the car stood during the window
         self.max_bias = math.radians(s.max_gyro_bias_dps)
         self._g2 = self._a2 = 1.0         # smoothed squares of the IMU figures
         self._still_s = 0.0              # how long it has looked still
@@ -88,7 +86,7 @@ class Standstill:
     def _restart_learning(self) -> None:
         self._sums = [0] + [0.0] * 12
         self._t_learnt = 0.0
-        self._gnss_parked = False
+        self._gnss_parked = False        # a receiver said the car stood during the window
 
     def _learn(self, dt, gx, gy, gz, fx, fy, fz, parked: bool | None) -> bool:
         """Gather the spread of `align_s` of samples a standing car's (`parked`: what GNSS

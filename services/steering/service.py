@@ -27,6 +27,7 @@ import logging
 import math
 from dataclasses import dataclass
 
+import pymap3d
 import zenoh
 
 from viena.common.errors import InputError, PayloadError
@@ -198,11 +199,8 @@ def speed_of_fix(fix: dict) -> tuple[str, int, float, float, bool]:
     t, unit, valid, vel, sigma, lat, lon = _FIX(fix)
     if vel is None or sigma is None:
         return unit, t, math.nan, math.nan, False
-    la, lo = math.radians(lat), math.radians(lon)
-    up = (math.cos(la) * math.cos(lo), math.cos(la) * math.sin(lo), math.sin(la))
-    v_up = sum(v * u for v, u in zip(vel, up))
-    horizontal = math.sqrt(max(0.0, sum(v * v for v in vel) - v_up * v_up))
-    return unit, t, horizontal, max(sigma), valid
+    east, north, _ = pymap3d.uvw2enu(*vel, lat, lon)
+    return unit, t, math.hypot(east, north), max(sigma), valid
 
 
 def main(argv=None) -> int:

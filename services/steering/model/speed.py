@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from viena.common.display import number
 from viena.common.settings import setting
 
 ESTIMATOR, GNSS, CONSERVATIVE = "estimator", "gnss", "conservative"
@@ -91,7 +92,7 @@ class SpeedSources:
         why = ""
         if not valid:
             why = "not_valid"
-        elif not (_finite(speed) and _finite(sigma) and isinstance(t_ns, int)):
+        elif number(speed) is None or number(sigma) is None or not isinstance(t_ns, int):
             why = "non_finite"
         elif speed < 0 or sigma < 0:
             why = "negative"
@@ -129,6 +130,3 @@ class SpeedSources:
             used = max(used, fix.speed_mps + s.speed_margin_sigmas * fix.sigma_mps)
         return Speed(used, "+".join([ESTIMATOR, *agreeing]))
 
-
-def _finite(x) -> bool:
-    return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
