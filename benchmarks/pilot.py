@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from viena.common import clock
 from viena.common.geodesy import LocalFrame
 from viena.common.rotation import euler_from_quat
 from viena.services.pilot.model.estimate import Estimate
@@ -177,10 +178,10 @@ class LiveLoop:
     """Once round the loop on the running sim profile, the pilot steering through the
     estimator: sends the route from where the car is, starts the pilot, and measures the
     truth against the route while the pilot follows. Needs the sim profile and viena-pilot
-    on the router `session` talks to."""
+    on the router `session` talks to, or a lockstep car's session (viena.lockstep_car): it
+    waits and reads the time through viena.common.clock, so it runs on either clock."""
 
     def __init__(self, session, car: str = "elettra"):
-        import queue
         import threading
 
         from viena.common.keys import Keys
@@ -189,7 +190,7 @@ class LiveLoop:
 
         self.session, self.keys = session, Keys(car)
         self._truth_schema, self._pilot_schema, self._estimate_reader = TRUTH, STATE, ESTIMATE.reader("t", "enu_m")
-        self.truths: queue.Queue = queue.Queue()
+        self.truths = clock.Queue()
         self.pilot_state: dict = {}
         self.estimate_errors: list[float] = []
         self.estimate_ages_s: list[float] = []          # how old each state was on arrival
@@ -212,7 +213,7 @@ class LiveLoop:
     def _on_estimate(self, sample) -> None:
         from viena.common.schema import unpack
         t, enu = self._estimate_reader(unpack(sample.payload.to_bytes()))
-        age_s = (time.time_ns() - t) * 1e-9
+        age_s = (clock.time_ns() - t) * 1e-9
         with self._lock:
             self.estimate_ages_s.append(age_s)
             at = self._truth_at.get(round(t / 1e7))
@@ -248,9 +249,9 @@ class LiveLoop:
         stops following; `during(t_following_s)` is called as it goes (to cut GNSS, say)."""
         import json
 
-        end = time.monotonic() + timeout_s
+        end = clock.monotonic() + timeout_s
         while True:                   # the estimate may be off the route at first: try again
-            if time.monotonic() > end:
+            if clock.monotonic() > end:
                 raise RuntimeError(f"the pilot did not start: {self.state()}")
             truth = self.truth()
             if truth["speed_mps"] < min_speed_mps or not self._fresh():
@@ -263,23 +264,23 @@ class LiveLoop:
             answer = self.ask("cmd", b'{"cmd": "start"}')
             if answer.get("status") == "accepted":
                 break
-            time.sleep(0.5)
+            clock.sleep(0.5)
         path = Path.from_route(route, IST_ORIGIN)
         while not self.truths.empty():
             self.truths.get_nowait()
         with self._lock:
             self.estimate_errors.clear()
             self.estimate_ages_s.clear()
-        errors, near, t0, started_ns = [], None, time.monotonic(), time.time_ns()
+        errors, near, t0, started_ns = [], None, clock.monotonic(), clock.time_ns()
         miss = np.full(len(path.points), np.inf)
-        while time.monotonic() < end:
+        while clock.monotonic() < end:
             truth = self.truth()
             state = self.state()
             ended = state.get("mode") != "following" and state.get("t", 0) > started_ns
             if ended and truth["t"] >= state["t"]:
                 break                   # the drive ended: later truths are not the pilot's
             if during is not None:
-                during(time.monotonic() - t0)
+                during(clock.monotonic() - t0)
             x, y = truth["enu_m"][0], truth["enu_m"][1]
             where = path.project(x, y, near_s_m=near)
             near = where.s_m
@@ -288,7 +289,7 @@ class LiveLoop:
         state = self.state()
         with self._lock:
             estimate_errors = np.array(self.estimate_errors)
-        return Drive(state.get("mode"), state.get("reason"), np.array(errors), miss, time.monotonic() - t0,
+        return Drive(state.get("mode"), state.get("reason"), np.array(errors), miss, clock.monotonic() - t0,
                      estimate_errors)
 
     def _fresh(self) -> bool:

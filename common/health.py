@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 import threading
-import time
 from dataclasses import dataclass, field
 
+from viena.common import clock
 from viena.common.display import Alert, fields_line, fmt_age, fmt_map, number
 from viena.common.schema import F, Schema
 
@@ -96,7 +96,7 @@ class Health:
         self._errors: dict[str, int] = {}
         self._state: dict = {}
         self._last_counts: dict[str, int] = {}
-        self._last_snapshot = time.monotonic()
+        self._last_snapshot = clock.monotonic()
         self._started = self._last_snapshot
         self._last_sample: float | None = None
         self._seq = 0
@@ -110,7 +110,7 @@ class Health:
             self._errors[name] = self._errors.get(name, 0) + n
 
     def mark_sample(self) -> None:
-        self._last_sample = time.monotonic()
+        self._last_sample = clock.monotonic()
 
     def set(self, name: str, value) -> None:
         with self._lock:
@@ -125,7 +125,7 @@ class Health:
             return dict(self._counts)
 
     def snapshot(self) -> dict:
-        now = time.monotonic()
+        now = clock.monotonic()
         with self._lock:
             dt = max(now - self._last_snapshot, 1e-6)
             rates = {k: (v - self._last_counts.get(k, 0)) / dt for k, v in self._counts.items()}
@@ -133,7 +133,7 @@ class Health:
             self._last_snapshot = now
             self._seq += 1
             return {
-                "t": time.time_ns(),
+                "t": clock.time_ns(),
                 "seq": self._seq,
                 "service": self.service,
                 "unit": self.unit,

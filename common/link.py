@@ -2,9 +2,11 @@
 
 Modelled on python-can's ``BusABC``: drivers are written against `Link` (open, read, write,
 close) and a transport fills in a few primitives (`_open`, `_read`, `_write`, `_close`).
-The one transport today is pyserial (`SerialLink`), which reaches every cable the car and
-the twins use through a URL: ``/dev/ttyUSB0`` on the car, ``socket://127.0.0.1:PORT`` for a
-twin, ``rfc2217://host:port`` for a serial server, ``loop://`` for a loopback.
+pyserial (`SerialLink`) reaches every cable the car and the twins use through a URL:
+``/dev/ttyUSB0`` on the car, ``socket://127.0.0.1:PORT`` for a twin, ``rfc2217://host:port``
+for a serial server, ``loop://`` for a loopback. ``mem://NAME`` is a twin in this process,
+reached without a socket (lockstep/links.py: the car on a virtual clock). `open_link` picks
+the transport by URL, so a driver never names one.
 
 A link is pulled: ``read(timeout_s)`` returns what has arrived as a `Chunk`, stamped with the
 host clock the moment the read returned (the receive time of the chunk's last byte). A
@@ -18,12 +20,13 @@ from __future__ import annotations
 import logging
 import select
 import threading
-import time
 from abc import ABC, abstractmethod
 from typing import NamedTuple
 from urllib.parse import urlsplit
 
 import serial
+
+from viena.common import clock
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +36,10 @@ CHUNK = 4096
 POLL_S = 0.002
 #: a write that cannot finish in this long fails (a stuck USB adapter)
 WRITE_TIMEOUT_S = 1.0
+#: the rate a link opens at unless told (a NovAtel's factory rate)
+DEFAULT_BAUDRATE = 9600
+#: the scheme of the in-process links (lockstep/links.py)
+MEMORY_SCHEME = "mem"
 
 
 class Chunk(NamedTuple):
@@ -104,7 +111,7 @@ class Link(ABC):
         if not self.is_open:
             raise serial.PortNotOpenError()
         data = self._read(timeout_s)
-        return Chunk(data, time.time_ns())
+        return Chunk(data, clock.time_ns())
 
     def write(self, data: bytes) -> None:
         if not self.is_open:
@@ -136,7 +143,7 @@ class SerialLink(Link):
     bytes that are there: pyserial's socket:// reports `in_waiting` as 0 or 1, and reading a
     frame a byte at a time cost a millisecond of CPU per frame."""
 
-    def __init__(self, url: str, baudrate: int = 9600):
+    def __init__(self, url: str, baudrate: int = DEFAULT_BAUDRATE):
         super().__init__(url, baudrate)
         self._port: serial.SerialBase | None = None
         self._fd: int | None = None
@@ -163,7 +170,7 @@ class SerialLink(Link):
         if self._fd is None:
             data = port.read(CHUNK)
             if not data:
-                time.sleep(min(timeout_s, POLL_S))
+                clock.sleep(min(timeout_s, POLL_S))
             return data
         try:
             ready, _, _ = select.select([self._fd], [], [], timeout_s)
@@ -196,3 +203,13 @@ class SerialLink(Link):
                 port.close()
             except Exception as exc:  # noqa: BLE001 - closing a vanished device must not raise
                 log.debug("closing %s: %s", self.url, exc)
+
+
+def open_link(url: str, baudrate: int | None = None) -> Link:
+    """The link for a URL, not yet opened: ``mem://NAME`` the twin served in this process
+    under NAME (see lockstep/links.py), anything else a pyserial `SerialLink`."""
+    rate = DEFAULT_BAUDRATE if baudrate is None else baudrate
+    if urlsplit(url).scheme == MEMORY_SCHEME:
+        from viena.common.lockstep.links import MemoryLink  # only a simulation needs it
+        return MemoryLink(url, rate)
+    return SerialLink(url, rate)

@@ -11,10 +11,14 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
+from typing import Any
 
+from viena.common import clock
 from viena.common.link import Link
 
 log = logging.getLogger(__name__)
+#: marks a thread as one of the readers, so that `stop()` called from it does not join it
+_local = threading.local()
 
 #: how long one read may wait: bounds how long `stop()` takes
 READ_TIMEOUT_S = 0.05
@@ -29,8 +33,8 @@ class LinkReader:
         self._on_data = on_data
         self._on_error = on_error
         self._name = name
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        self._thread: Any = None                # a clock Thread
+        self._stop = clock.Event()
 
     @property
     def running(self) -> bool:
@@ -39,9 +43,9 @@ class LinkReader:
     def start(self) -> LinkReader:
         """Start reading the (open) link; a reader still running is stopped first."""
         self.stop()
-        self._stop = threading.Event()     # the old thread keeps its own, already set
-        self._thread = threading.Thread(target=self._run, args=(self._stop,),
-                                        name=f"{self._name}-reader", daemon=True)
+        self._stop = clock.Event()     # the old thread keeps its own, already set
+        self._thread = clock.Thread(target=self._run, args=(self._stop,),
+                                    name=f"{self._name}-reader", daemon=True)
         self._thread.start()
         return self
 
@@ -49,10 +53,11 @@ class LinkReader:
         """Stop the thread (within READ_TIMEOUT_S); callable from the thread itself."""
         self._stop.set()
         thread, self._thread = self._thread, None
-        if thread is not None and thread is not threading.current_thread():
+        if thread is not None and getattr(_local, "reader", None) is not self:
             thread.join(timeout=1.0)
 
-    def _run(self, stop: threading.Event) -> None:
+    def _run(self, stop: Any) -> None:
+        _local.reader = self
         while not stop.is_set():
             try:
                 data, t_host_ns = self.link.read(READ_TIMEOUT_S)

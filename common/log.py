@@ -4,6 +4,8 @@ from __future__ import annotations
 import logging
 import sys
 
+from viena.common import clock as clocks
+
 FORMAT = "%(asctime)s %(levelname)-7s %(name)s: %(message)s"
 
 
@@ -24,10 +26,8 @@ class Throttled:
 
     def __init__(self, logger: logging.Logger, what: str, interval_s: float = 10.0,
                  level: int = logging.WARNING, clock=None):
-        import time
-
         self._log, self._what, self.interval_s, self._level = logger, what, interval_s, level
-        self._clock = clock or time.monotonic
+        self._clock = clock or clocks.monotonic
         self._last: dict[str, float] = {}
         self._quiet: dict[str, int] = {}
 

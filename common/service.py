@@ -27,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from viena.common import clock
 from viena.common.errors import ConfigError, SampleError
 from viena.common.health import HEALTH, Health
 from viena.common.keys import Keys
@@ -112,8 +113,8 @@ class Service:
         self.settings = self.read_settings(toml, self.unit, args)
         self.zenoh_config = zenoh_config(args, toml, identity=self.unit or self.name)
         self.health = Health(self.name, self.unit)
-        self.stopping = threading.Event()
-        self.session: Any = None           # the zenoh.Session, once run() has opened it
+        self.stopping = clock.Event()
+        self.session: Any = None           # the zenoh.Session (or the lockstep bus's), once serving
         self._declared: list = []
         self._token = None
 
@@ -145,10 +146,18 @@ class Service:
 
     # -- the life ----------------------------------------------------------------------------
     def run(self) -> int:
+        """The process's life: signals, a zenoh session, then `serve` until stopped."""
         call_on_signals(self._on_signal)
-        self.session = open_session(self.zenoh_config, self.stopping)
-        if self.session is None:
+        session = open_session(self.zenoh_config, self.stopping)
+        if session is None:
             return 0
+        return self.serve(session)
+
+    def serve(self, session: Any) -> int:
+        """Run on an open session until `stopping` is set, then close everything, the
+        session too. The lockstep runner (viena.common.lockstep) calls this with its
+        in-memory bus's session, on its virtual clock: the rest is the car's code path."""
+        self.session = session
         other = self.running_elsewhere()
         if other is not None:
             print(f"viena-{self.name}: {other}", file=sys.stderr, flush=True)

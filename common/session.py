@@ -126,6 +126,11 @@ def add_common_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def load_settings_file(args: argparse.Namespace) -> dict:
+    """The settings file's tables; `args.settings`, when a program was given its settings
+    already read (the lockstep runner hands every program the same merged tables)."""
+    given = getattr(args, "settings", None)
+    if given is not None:
+        return given
     return load_toml(args.config) if getattr(args, "config", None) else {}
 
 

@@ -2,8 +2,8 @@
 
 A port can stay open while the device behind it says nothing (a receiver that lost its
 configuration, a board that hung, a cable that is half out); only the silence shows it.
-The drivers stamp what they receive with the host clock (``time.time_ns``), so the watch
-keeps that clock and a driver's stamp can be handed over as it is.
+The drivers stamp what they receive with the host clock (``viena.common.clock.time_ns``),
+so the watch keeps that clock and a driver's stamp can be handed over as it is.
 
 The timeout is ``timeout_s``, or, with ``epochs`` given, the larger of that and ``epochs``
 times the median interval between the device's recent epochs: a 1 Hz receiver whose
@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import statistics
 import threading
-import time
 from collections import deque
 from collections.abc import Callable
+
+from viena.common import clock as clocks
 
 #: how many recent epoch intervals the median is taken over
 EPOCH_WINDOW = 15
@@ -26,7 +27,7 @@ class SilenceWatch:
     (`expired`)."""
 
     def __init__(self, timeout_s: float, *, epochs: float | None = None,
-                 clock: Callable[[], int] = time.time_ns):
+                 clock: Callable[[], int] = clocks.time_ns):
         self.min_timeout_s = timeout_s
         self.epochs = epochs
         self._clock = clock

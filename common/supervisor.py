@@ -17,9 +17,10 @@ counted, and reopened after ``max_s``: a bug must neither end the service nor sp
 from __future__ import annotations
 
 import logging
-import threading
 from abc import ABC, abstractmethod
+from typing import Any
 
+from viena.common import clock
 from viena.common.health import (
     CONNECT_FAILURES,
     CONNECTED,
@@ -92,19 +93,19 @@ class DeviceSupervisor:
 
     def __init__(self, device: Device, health: Health, silence: SilenceWatch, *, url: str,
                  backoff: Backoff | None = None, tick_s: float = 0.1,
-                 stopping: threading.Event | None = None):
+                 stopping: Any = None):
         self.device, self.health, self.silence = device, health, silence
         self.url = url
         self.backoff = backoff or Backoff()
         self.tick_s = tick_s
-        self.stopping = stopping or threading.Event()
+        self.stopping = stopping or clock.Event()
         self._pushed: dict[str, int] = {}
-        self._thread: threading.Thread | None = None
+        self._thread: Any = None
         self._show_every_counter()
 
     # -- the thread ----------------------------------------------------------------------
     def start(self) -> DeviceSupervisor:
-        self._thread = threading.Thread(target=self.run, name=f"{self.device.kind}-supervisor",
+        self._thread = clock.Thread(target=self.run, name=f"{self.device.kind}-supervisor",
                                         daemon=True)
         self._thread.start()
         return self

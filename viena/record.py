@@ -21,11 +21,11 @@ import logging
 import queue
 import socket
 import sys
-import threading
-import time
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
+from viena.common import clock
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
 from viena.recording import ReceiveClock, RecordingError, RecordingWriter, human_bytes, repair
@@ -50,18 +50,18 @@ class Recorder:
         self.session, self.keyexprs, self.writer = session, keyexprs, writer
         self.clock = ReceiveClock()
         self.error: OSError | None = None
-        self.failed = threading.Event()
+        self.failed = clock.Event()
         self.silence = SilenceWarning("viena record", keyexprs)
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._queue = clock.Queue()
         self._subscribers = []
-        self._thread = threading.Thread(target=self._write_loop, name="record-writer", daemon=True)
+        self._thread = clock.Thread(target=self._write_loop, name="record-writer", daemon=True)
 
     def start(self) -> None:
         self._thread.start()
-        clock, put, heard = self.clock, self._queue.put, self.silence.heard
+        stamp, put, heard = self.clock, self._queue.put, self.silence.heard
 
         def on_sample(sample) -> None:      # zenoh's thread: stamp and queue, nothing else
-            put((clock(), str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
+            put((stamp(), str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
             heard()
 
         for keyexpr in self.keyexprs:
@@ -78,10 +78,10 @@ class Recorder:
         """Write what arrives; every FLUSH_PERIOD_S close the chunk and make it durable, so
         a recorder killed (or a car switched off) loses at most that much."""
         get, write = self._queue.get, self.writer.write
-        flush_at = time.monotonic() + FLUSH_PERIOD_S
+        flush_at = clock.monotonic() + FLUSH_PERIOD_S
         while True:
             try:
-                item = get(timeout=max(0.0, flush_at - time.monotonic()))
+                item = get(timeout=max(0.0, flush_at - clock.monotonic()))
             except queue.Empty:
                 item = ()
             if item is None:
@@ -90,8 +90,8 @@ class Recorder:
                 if item and self.error is None:
                     log_time, key, encoding, data = item
                     write(key, encoding, log_time, data)
-                if time.monotonic() >= flush_at:
-                    flush_at = time.monotonic() + FLUSH_PERIOD_S
+                if clock.monotonic() >= flush_at:
+                    flush_at = clock.monotonic() + FLUSH_PERIOD_S
                     if self.error is None:
                         self.writer.flush()
             except OSError as exc:
@@ -119,7 +119,7 @@ class Recorder:
 
 
 def default_output() -> str:
-    return datetime.now(UTC).strftime("viena-%Y%m%d-%H%M%S.mcap")
+    return datetime.fromtimestamp(clock.time(), UTC).strftime("viena-%Y%m%d-%H%M%S.mcap")
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
@@ -152,11 +152,11 @@ class Progress:
     def __init__(self, recorder: Recorder, output: Path, quiet: bool):
         self.recorder, self.output, self.quiet = recorder, output, quiet
         self.tty = sys.stderr.isatty()
-        self._t0 = self._t_last = self._t_printed = time.monotonic()
+        self._t0 = self._t_last = self._t_printed = clock.monotonic()
         self._n_last = 0
 
     def update(self, final: bool = False) -> None:
-        now = time.monotonic()
+        now = clock.monotonic()
         n = self.recorder.samples
         rate = (n - self._n_last) / max(now - self._t_last, 1e-6)
         self._t_last, self._n_last = now, n
@@ -175,7 +175,7 @@ class Progress:
             print("\r\033[K", end="", file=sys.stderr)
         r = self.recorder
         print(f"recorded {r.samples} samples on {r.writer.keys} keys in "
-              f"{time.monotonic() - self._t0:.1f} s into {path} ({human_bytes(path.stat().st_size)})",
+              f"{clock.monotonic() - self._t0:.1f} s into {path} ({human_bytes(path.stat().st_size)})",
               file=sys.stderr, flush=True)
 
 
@@ -193,7 +193,7 @@ def _run(args: argparse.Namespace) -> int:
     output = Path(args.output or default_output())
     try:
         metadata = {"keyexprs": " ".join(keyexprs), "car": link.car, "host": socket.gethostname(),
-                    "started": datetime.now(UTC).isoformat(timespec="seconds")}
+                    "started": datetime.fromtimestamp(clock.time(), UTC).isoformat(timespec="seconds")}
         if args.foxglove:
             from viena.foxglove_export import FoxgloveWriter  # the SDK only when asked for
             writer = FoxgloveWriter(output, metadata=metadata)
@@ -249,14 +249,14 @@ def _repair(args: argparse.Namespace) -> int:
 
 
 def _record_until_stopped(recorder: Recorder, progress: Progress, duration: float,
-                          stop: threading.Event) -> None:
+                          stop: Any) -> None:
     print(f"recording {', '.join(recorder.keyexprs)} into {progress.output} (Ctrl-C stops)",
           file=sys.stderr, flush=True)
-    deadline = time.monotonic() + duration if duration > 0 else None
+    deadline = clock.monotonic() + duration if duration > 0 else None
     while not stop.is_set() and not recorder.failed.is_set():
         wait = PROGRESS_PERIOD_S
         if deadline is not None:
-            wait = min(wait, deadline - time.monotonic())
+            wait = min(wait, deadline - clock.monotonic())
             if wait <= 0:
                 break
         if stop.wait(wait):

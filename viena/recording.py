@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import os
 import struct
-import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,6 +34,7 @@ from mcap.records import Schema as McapSchema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
+from viena.common import clock
 from viena.common.errors import InputError, SampleError
 from viena.common.schema import MSGPACK, unpack
 
@@ -101,11 +101,11 @@ class ReceiveClock:
     """
 
     def __init__(self):
-        self._wall0 = time.time_ns()
-        self._mono0 = time.monotonic_ns()
+        self._wall0 = clock.time_ns()
+        self._mono0 = clock.monotonic_ns()
 
     def __call__(self) -> int:
-        return self._wall0 + time.monotonic_ns() - self._mono0
+        return self._wall0 + clock.monotonic_ns() - self._mono0
 
 
 @dataclass(frozen=True, slots=True)

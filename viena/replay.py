@@ -12,12 +12,12 @@ import argparse
 import logging
 import queue
 import sys
-import threading
-import time
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
+from viena.common import clock
 from viena.common.errors import InputError
 from viena.common.keys import ROOT, Keys
 from viena.common.session import add_common_arguments
@@ -70,7 +70,7 @@ class Player:
                 congestion_control=zenoh.CongestionControl.BLOCK)
         return pub
 
-    def play(self, messages: Iterable[Recorded], stop: threading.Event) -> None:
+    def play(self, messages: Iterable[Recorded], stop: Any) -> None:
         """One pass: the first sample goes out now, every other one at its log-time offset."""
         t0_log = t0 = None
         stats = self.stats
@@ -79,12 +79,12 @@ class Player:
             pub = self._publisher(key, msg.encoding)
             if self.rate > 0:
                 if t0 is None:
-                    t0_log, t0 = msg.log_time, time.monotonic()
+                    t0_log, t0 = msg.log_time, clock.monotonic()
                 due = t0 + (msg.log_time - t0_log) / 1e9 / self.rate
                 if self._sleep_until(due, stop):
                     return
                 pub.put(msg.data)
-                stats.lateness_s.append(time.monotonic() - due)
+                stats.lateness_s.append(clock.monotonic() - due)
             else:
                 if stop.is_set():
                     return
@@ -94,17 +94,17 @@ class Player:
         stats.passes += 1
 
     @staticmethod
-    def _sleep_until(due: float, stop: threading.Event) -> bool:
-        """Sleep until `due` (monotonic s); True if stopped first. time.sleep wakes up more
+    def _sleep_until(due: float, stop: Any) -> bool:
+        """Sleep until `due` (monotonic s); True if stopped first. A sleep wakes up more
         precisely than Event.wait, so the stop flag is only looked at between slices; a
         sample due within EARLY_S goes now, as sleeping that little overshoots more."""
         while True:
-            wait = due - time.monotonic()
+            wait = due - clock.monotonic()
             if wait <= EARLY_S:
                 return stop.is_set()
             if stop.is_set():
                 return True
-            time.sleep(min(wait, STOP_SLICE_S))
+            clock.sleep(min(wait, STOP_SLICE_S))
 
     def close(self) -> None:
         for pub in self._publishers.values():
@@ -124,10 +124,10 @@ class Prefetch:
     _END = object()
 
     def __init__(self, messages: Iterable[Recorded], depth: int = 20000):
-        self._queue: queue.Queue = queue.Queue(maxsize=depth)
-        self._primed = threading.Event()
-        self._closed = threading.Event()
-        self._thread = threading.Thread(target=self._read, args=(messages,), name="replay-read",
+        self._queue = clock.Queue(maxsize=depth)
+        self._primed = clock.Event()
+        self._closed = clock.Event()
+        self._thread = clock.Thread(target=self._read, args=(messages,), name="replay-read",
                                         daemon=True)
         self._thread.start()
 
@@ -212,7 +212,7 @@ def _run(args: argparse.Namespace) -> int:
     # The reading thread must let the player in on time: switch threads every 0.5 ms
     # (Python's default is 5 ms) so that a due sample waits at most that for the GIL.
     sys.setswitchinterval(0.0005)
-    t_start = time.monotonic()
+    t_start = clock.monotonic()
     damaged = False
     try:
         while not stop.is_set():
@@ -236,7 +236,7 @@ def _run(args: argparse.Namespace) -> int:
 
         timing = f"; 99 % within {np.percentile(stats.lateness_s, 99) * 1e3:.1f} ms of their time"
     print(f"replayed {stats.samples} samples on {len(stats.keys)} keys in "
-          f"{time.monotonic() - t_start:.1f} s ({stats.passes} "
+          f"{clock.monotonic() - t_start:.1f} s ({stats.passes} "
           f"{'pass' if stats.passes == 1 else 'passes'}){timing}", file=sys.stderr)
     return 1 if damaged else 0
 

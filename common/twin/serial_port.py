@@ -172,3 +172,14 @@ class SerialEndpoint:
             return False
         finally:
             conn.setblocking(False)
+
+
+def serve_twin(twin: ByteTwin, name: str, host: str, port: int):
+    """A twin's cable: on TCP at host:port, or in this process when the sim's host is
+    "mem" (the lockstep runner, viena.common.lockstep.links), where drivers open it as
+    `mem://NAME`."""
+    if host == "mem":
+        from viena.common.lockstep.links import MemoryEndpoint
+
+        return MemoryEndpoint(twin, name).start()
+    return SerialEndpoint(twin, host, port, name).start()

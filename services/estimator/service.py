@@ -12,10 +12,9 @@ Routes and the way to the next checkpoint are the pilot's (services/pilot).
 from __future__ import annotations
 
 import queue
-import threading
-import time
 from dataclasses import dataclass
 
+from viena.common import clock
 from viena.common.errors import ConfigError, InputError
 from viena.common.schema import unpack
 from viena.common.service import Service, run_service
@@ -45,17 +44,17 @@ class EstimatorService(Service):
     def start(self) -> None:
         s = self.settings
         try:
-            self.estimator = Estimator(s.estimator, clock=time.time_ns, log=self.log)
+            self.estimator = Estimator(s.estimator, clock=clock.time_ns, log=self.log)
         except ValueError as exc:
             raise ConfigError(f"[estimator]: {exc}") from None
-        self._queue: queue.Queue = queue.Queue(maxsize=max(10, s.queue_size))
+        self._queue = clock.Queue(maxsize=max(10, s.queue_size))
         self.state_pub = self.publisher(self.keys.key("estimator", "state"), STATE)
         imu_key, gnss_key = self.keys.key(s.imu_key), self.keys.key(s.gnss_key)
         self.declare_subscriber(imu_key, lambda sample: self._enqueue("imu", sample))
         self.declare_subscriber(gnss_key, lambda sample: self._enqueue("gnss", sample))
         self.log.info("estimating from %s and %s", imu_key, gnss_key)
         self._last_health = 0.0
-        self._thread = threading.Thread(target=self._run, name="estimator", daemon=True)
+        self._thread = clock.Thread(target=self._run, name="estimator", daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
@@ -103,7 +102,7 @@ class EstimatorService(Service):
         state = self.estimator.state()
         if self.state_pub.put(state):
             self.health.count("state")
-        now = time.monotonic()
+        now = clock.monotonic()
         if now - self._last_health >= 1.0:
             self._last_health = now
             for name in ("mode", "heading_source", "gnss_live", "gnss_used", "gnss_rejected",

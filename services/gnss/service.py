@@ -14,13 +14,12 @@ of the last fix.
 from __future__ import annotations
 
 import itertools
-import threading
-import time
 from abc import abstractmethod
 from dataclasses import dataclass, replace
 
 import serial
 
+from viena.common import clock
 from viena.common.errors import ConfigError
 from viena.common.service import Service, run_service
 from viena.common.settings import setting
@@ -91,7 +90,7 @@ class ReceiverDevice(Device):
 
     def __init__(self, service: GnssService):
         self.service = service
-        self._failed = threading.Event()
+        self._failed = clock.Event()
         self._failure = ""
 
     def link_failed(self, exc: Exception) -> None:
@@ -136,7 +135,7 @@ class NovatelSource(ReceiverDevice):
             dynamics=Dynamics[s.dynamics], sbas=SbasKeyword[s.sbas] if s.sbas else None,
             sbas_system=SbasSystem[s.sbas_system], sbas_enable_value=s.sbas_enable_value,
             logs=logs, read_config=True)
-        self._sbas_since = time.monotonic()
+        self._sbas_since = clock.monotonic()
         self._sbas_verdict = ""
         service.health.error("sbas_mismatches", 0)
         service.health.error("sbas_unconfirmed", 0)
@@ -147,7 +146,7 @@ class NovatelSource(ReceiverDevice):
     def _start(self, again: bool) -> None:
         """The start-up sequence. Coming back after a lost link, first try the receiver
         as it most likely still is (working rate, no 2 s break), then the whole sequence."""
-        self._sbas_since, self._sbas_verdict = time.monotonic(), ""
+        self._sbas_since, self._sbas_verdict = clock.monotonic(), ""
         if again and self.config.send_break is not False:
             quick = replace(self.config, send_break=False, initial_baud=self.config.baud)
             try:
@@ -166,7 +165,7 @@ class NovatelSource(ReceiverDevice):
         health (state sbas, sbas_confirmed; errors sbas_mismatches, sbas_unconfirmed) and
         one log line each time the verdict changes."""
         check = check_sbas(self.config, self.receiver.sbas(), wait_s=SBAS_CONFIRM_S,
-                           waited_s=time.monotonic() - self._sbas_since,
+                           waited_s=clock.monotonic() - self._sbas_since,
                            request_error=self.receiver.config_request_error)
         if check.verdict == self._sbas_verdict:
             return

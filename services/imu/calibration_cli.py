@@ -20,11 +20,11 @@ import argparse
 import math
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 
+from viena.common import clock
 from viena.common.errors import ConfigError, InputError, SampleError
 from viena.services.imu import drive_calibration, noise_calibration
 from viena.services.imu.calibration_file import DEFAULT_FILE, dumps, load_calibration, load_file, save_calibration
@@ -311,8 +311,8 @@ def from_port(args, seconds: float) -> Recording:
     readings = []
     print(f"reading {args.port} for {seconds:.0f} s ...", file=sys.stderr)
     with DRIVERS[firmware](args.port) as imu:
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        end = clock.monotonic() + seconds
+        while clock.monotonic() < end:
             r = imu.read(timeout=0.5)
             if r is not None:
                 readings.append(r)
@@ -344,7 +344,7 @@ def from_zenoh(args, seconds: float) -> Recording:
     try:
         sub = session.declare_subscriber(key, on_sample)
         print(f"collecting {key} for {seconds:.0f} s ...", file=sys.stderr)
-        time.sleep(seconds)
+        clock.sleep(seconds)
         sub.undeclare()
     finally:
         session.close()

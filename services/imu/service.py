@@ -9,10 +9,10 @@ and goes on.
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from viena.common import clock
 from viena.common.errors import ConfigError
 from viena.common.service import Service, run_service
 from viena.common.settings import setting
@@ -47,8 +47,8 @@ class RazorDevice(Device):
         self.driver.open()
 
     def serve(self, timeout_s: float) -> None:
-        deadline = time.monotonic() + timeout_s
-        while (left_s := deadline - time.monotonic()) > 0:
+        deadline = clock.monotonic() + timeout_s
+        while (left_s := deadline - clock.monotonic()) > 0:
             reading = self.driver.read(timeout=left_s)
             if reading is None:
                 break

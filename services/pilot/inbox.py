@@ -26,6 +26,7 @@ from typing import Any
 
 import zenoh
 
+from viena.common import clock
 from viena.common.errors import PayloadError
 from viena.common.log import Throttled
 from viena.common.payload import MAX_COMMAND_BYTES, parse_payload, reply_bytes
@@ -72,17 +73,18 @@ class Inbox:
     """See the module docstring. The control thread calls `take` each tick, and `decided`
     after each request taken."""
 
-    def __init__(self, pilot: Pilot, log, health, stopping: threading.Event, capacity: int = CAPACITY,
+    def __init__(self, pilot: Pilot, log, health, stopping: Any, capacity: int = CAPACITY,
                  puts_waiting: int = PUTS_WAITING):
         self._pilot, self._health, self._stopping = pilot, health, stopping
-        self._arrived: queue.Queue = queue.Queue(maxsize=capacity)
-        self._put_places = threading.BoundedSemaphore(min(puts_waiting, capacity))
-        self._read: queue.Queue[Request] = queue.Queue(maxsize=capacity)
+        self._arrived = clock.Queue(maxsize=capacity)
+        # only ever acquired without blocking: a count, never a wait
+        self._put_places = threading.BoundedSemaphore(min(puts_waiting, capacity))  # noqa: TID251
+        self._read = clock.Queue(maxsize=capacity)
         self._numbers = itertools.count(1)
         self._handed = self._decided = 0            # each written by one thread only
         self._refusals = Throttled(log, "refused")
         self._log = log
-        self._thread = threading.Thread(target=self._run, name="pilot-inbox", daemon=True)
+        self._thread = clock.Thread(target=self._run, name="pilot-inbox", daemon=True)
 
     def start(self) -> None:
         self._thread.start()

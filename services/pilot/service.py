@@ -29,12 +29,11 @@ flood delays it); it then needs a new start, and a start sent before it is refus
 from __future__ import annotations
 
 import math
-import threading
-import time
 from dataclasses import dataclass
 
 import zenoh
 
+from viena.common import clock
 from viena.common.errors import ConfigError, InputError
 from viena.common.log import Throttled
 from viena.common.schema import unpack
@@ -99,7 +98,7 @@ class PilotService(Service):
             raise ConfigError(f"[pilot]: {exc}") from None
         self.client = SteeringClient(self.session, self.keys.car, timeout_s=s.arm_timeout_s)
         self.inbox = Inbox(self.pilot, self.log, self.health, self.stopping)
-        self._estop = threading.Event()                # an estop put came: stop at the next tick
+        self._estop = clock.Event()                    # an estop put came: stop at the next tick
         self._estop_number = 0                         # and refuse a start that came before it
         self._unanswered_since: float | None = None
         self._latencies = Window(self.health, "estimate_to_setpoint_ms")  # estimate's stamp -> setpoint sent
@@ -120,7 +119,7 @@ class PilotService(Service):
                                                             zenoh.handlers.RingChannel(1))
         self.declare_subscriber(self.keys.key("steering", "estop"), self._on_estop)
         self.inbox.start()
-        self._thread = threading.Thread(target=self._run, name="pilot", daemon=True)
+        self._thread = clock.Thread(target=self._run, name="pilot", daemon=True)
         self._thread.start()
         self.log.info("pilot ready (%s), idle: send a route on %s", s.tracking.controller,
                       self.keys.key("pilot", "route"))
@@ -146,11 +145,11 @@ class PilotService(Service):
     def _run(self) -> None:
         period_s = 1.0 / self.settings.setpoint_rate_hz
         state_period_s = 1.0 / self.settings.state_rate_hz
-        next_tick = next_state = time.monotonic()
+        next_tick = next_state = clock.monotonic()
         seq = 0
         try:
             while not self.stopping.is_set():
-                self._lateness.add(time.monotonic() - next_tick)
+                self._lateness.add(clock.monotonic() - next_tick)
                 try:
                     self._step()
                 except Exception:                        # noqa: BLE001 - never leave the wheel to chance
@@ -158,18 +157,18 @@ class PilotService(Service):
                     self.log.exception("pilot step failed: stopping")
                     self.pilot.stop("internal error (see the pilot's log)")
                     self._give_back_lease()
-                now = time.monotonic()
+                now = clock.monotonic()
                 if now >= next_state:
                     next_state = max(next_state + state_period_s, now)
                     self._publish_state(seq)
                     seq += 1
                 if now >= self._path_due and self.pilot.route is not None:
                     self._path_due = now + PATH_PERIOD_S
-                    self._path_pub.put(path_sample(self.pilot.route, time.time_ns()))
+                    self._path_pub.put(path_sample(self.pilot.route, clock.time_ns()))
                 next_tick += period_s
-                self.stopping.wait(max(0.0, next_tick - time.monotonic()))
-                if time.monotonic() - next_tick > period_s:     # fell behind: do not burst
-                    next_tick = time.monotonic()
+                self.stopping.wait(max(0.0, next_tick - clock.monotonic()))
+                if clock.monotonic() - next_tick > period_s:     # fell behind: do not burst
+                    next_tick = clock.monotonic()
         finally:
             self.pilot.stop("pilot shut down")
             self.client.timeout_s = min(self.settings.arm_timeout_s, 0.5)   # within the 2 s stop
@@ -189,7 +188,7 @@ class PilotService(Service):
         # armed before the angle is made: the pilot plans from the steering's target and limits
         if self.pilot.mode == "following" and self.client.lease is None and not self._arm():
             return
-        angle_rad = self.pilot.tick(time.time_ns())
+        angle_rad = self.pilot.tick(clock.time_ns())
         if angle_rad is None:
             if self.pilot.mode != before:
                 self.log.info("%s: %s", self.pilot.mode, self.pilot.reason)
@@ -220,7 +219,7 @@ class PilotService(Service):
         except InputError:
             self.health.error("bad_steering_state")
             return
-        self._steering = (time.monotonic(), armed, owner, trip)
+        self._steering = (clock.monotonic(), armed, owner, trip)
         self.pilot.steering_speed_mps = speed
 
     def _arm(self) -> bool:
@@ -233,14 +232,14 @@ class PilotService(Service):
             self.log.warning("stopped: %s", self.pilot.reason)
             return False
         try:
-            self.pilot.on_armed(reply.get("envelope"), time.time_ns(), reply.get("target_deg"))
+            self.pilot.on_armed(reply.get("envelope"), clock.time_ns(), reply.get("target_deg"))
         except (ValueError, TypeError) as exc:
             self.pilot.stop(f"steering's envelope unreadable: {exc}")
             self.log.warning("stopped: %s", self.pilot.reason)
             self._owner = reply.get("owner")
             self._give_back_lease()
             return False
-        self._owner, self._armed_at = reply.get("owner"), time.monotonic()
+        self._owner, self._armed_at = reply.get("owner"), clock.monotonic()
         self.health.count("armed")
         self.log.info("armed: following the route")
         return True
@@ -255,8 +254,8 @@ class PilotService(Service):
             self._conflict(exc)
             return
         self.health.count("setpoint")
-        self._latencies.add((time.time_ns() - self.pilot.estimate.t_ns) * 1e-9)
-        now = time.monotonic()
+        self._latencies.add((clock.time_ns() - self.pilot.estimate.t_ns) * 1e-9)
+        now = clock.monotonic()
         if str(reply.get("reason", "")).startswith("no answer"):
             # a lost answer is not a refusal: keep streaming, until the steering's own
             # watchdog would have given up on us anyway
@@ -274,7 +273,7 @@ class PilotService(Service):
     def _setpoint_put(self, angle_deg: float) -> None:
         """Put the setpoint; the steering's state says whether it still steers for us."""
         steering = self._steering
-        now = time.monotonic()
+        now = clock.monotonic()
         why = None
         if steering is None or now - steering[0] > self.settings.steering_silence_s:
             self._unanswered_since = self._unanswered_since or now
@@ -298,7 +297,7 @@ class PilotService(Service):
         # From the estimate's stamp to the setpoint made from it sent (or answered, for
         # queries). The stamp is the estimator's clock: on one machine, or machines kept in
         # sync, it is the whole way from the sensors' time to the steering.
-        self._latencies.add((time.time_ns() - self.pilot.estimate.t_ns) * 1e-9)
+        self._latencies.add((clock.time_ns() - self.pilot.estimate.t_ns) * 1e-9)
 
     def _give_back_lease(self) -> None:
         """No more setpoints, then disarm (a lease the steering already dropped is simply
@@ -359,7 +358,7 @@ class PilotService(Service):
         if request.number < self._estop_number:
             self.inbox.refuse(request, "an estop came after this start")
             return
-        why = self.pilot.start(time.time_ns())
+        why = self.pilot.start(clock.time_ns())
         if why is not None:
             self.inbox.refuse(request, why)
             return
@@ -367,7 +366,7 @@ class PilotService(Service):
         request.answer({"status": ACCEPTED, "mode": self.pilot.mode})
 
     def _publish_state(self, seq: int) -> None:
-        state = self.pilot.snapshot(time.time_ns(), seq, self.client.lease is not None)
+        state = self.pilot.snapshot(clock.time_ns(), seq, self.client.lease is not None)
         if self._state_pub.put(state):
             self.health.count("state")
             self.health.mark_sample()

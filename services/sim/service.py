@@ -7,10 +7,9 @@ device services run their real drivers against it.
 """
 from __future__ import annotations
 
-import threading
-import time
 from dataclasses import dataclass
 
+from viena.common import clock
 from viena.common.errors import SampleError
 from viena.common.service import Service, run_service
 from viena.common.settings import part, setting
@@ -49,7 +48,7 @@ class SimService(Service):
         if wheels:
             self._person = PersonAtTheWheel(wheels)
             self.declare_subscriber(self.keys.key("steering", "state"), self._on_steering_state)
-        self._thread = threading.Thread(target=self._loop, name="sim-car", daemon=True)
+        self._thread = clock.Thread(target=self._loop, name="sim-car", daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
@@ -71,21 +70,21 @@ class SimService(Service):
     def _loop(self) -> None:
         """Fixed-rate stepping on absolute deadlines, so the rate does not drift."""
         dt = 1.0 / self.settings.rate_hz
-        self.car.start_clock(time.time_ns() - int(dt * 1e9))   # the first step ends now
-        next_t = time.monotonic()
+        self.car.start_clock(clock.time_ns() - int(dt * 1e9))   # the first step ends now
+        next_t = clock.monotonic()
         while not self.stopping.is_set():
             truth = self.car.step(dt)
             if self._truth_pub.put(truth_sample(truth)):
                 self.health.count("truth")
                 self.health.mark_sample()
             next_t += dt
-            delay = next_t - time.monotonic()
+            delay = next_t - clock.monotonic()
             if delay > 0:
                 self.stopping.wait(delay)
             elif delay < -0.5:                 # fell far behind (suspended): resync, say so
                 self.log.warning("behind by %.1f s: skipping ahead", -delay)
                 self.health.error("overrun")
-                next_t = time.monotonic()
+                next_t = clock.monotonic()
         self.health.set("position_enu_m", [round(v, 2) for v in self.car.truth().enu_m])
 
 

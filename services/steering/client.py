@@ -18,8 +18,8 @@ import math
 import os
 import sys
 import threading
-import time
 
+from viena.common import clock
 from viena.services.steering.model.signing import signed_setpoint
 
 KEY = "viena/{car}/steering/{name}"
@@ -40,7 +40,7 @@ def next_seq() -> int:
     a one-off `viena-steer --sign` needs no state of its own to keep `seq` growing."""
     global _last_seq
     with _seq_lock:
-        _last_seq = max(time.time_ns(), _last_seq + 1)
+        _last_seq = max(clock.time_ns(), _last_seq + 1)
         return _last_seq
 
 
@@ -77,10 +77,10 @@ class SteeringClient:
         import zenoh
 
         spacing = QUERY_SPACING_S.get(name, ONE_OFF_QUERY_SPACING_S)
-        wait = self._asked.get(name, -math.inf) + spacing - time.monotonic()
+        wait = self._asked.get(name, -math.inf) + spacing - clock.monotonic()
         if wait > 0:
-            time.sleep(wait)
-        self._asked[name] = time.monotonic()
+            clock.sleep(wait)
+        self._asked[name] = clock.monotonic()
         replies = list(self.session.get(KEY.format(car=self.car, name=name),
                                         payload=json.dumps(payload).encode(),
                                         timeout=self.timeout_s if timeout_s is None else timeout_s,
@@ -145,12 +145,12 @@ class SteeringClient:
     def hold(self, angle_deg: float, seconds: float, rate_hz: float = 20.0) -> dict:
         """Stream one angle; returns the last reply (stops early on a rejection)."""
         reply: dict = {}
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
+        end = clock.monotonic() + seconds
+        while clock.monotonic() < end:
             reply = self.setpoint(angle_deg)
             if reply.get("status") == "rejected":
                 break
-            time.sleep(1.0 / rate_hz)
+            clock.sleep(1.0 / rate_hz)
         return reply
 
 
@@ -182,7 +182,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.sign is not None:
         print(json.dumps(signed_setpoint(args.sign, args.angle_deg, seq=next_seq(),
-                                         t_ns=time.time_ns() if args.stamp else None)))
+                                         t_ns=clock.time_ns() if args.stamp else None)))
         return 0
     setup_logging("WARNING" if args.log_level == "INFO" else args.log_level)
     try:

@@ -23,9 +23,10 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-import time
 from collections.abc import Callable
+from typing import Any
 
+from viena.common import clock as clocks
 from viena.services.steering.driver.emcy import Emcy, emcy_name
 from viena.services.steering.driver.epos import DriveError, EposDrive
 from viena.services.steering.model.actions import (
@@ -60,21 +61,21 @@ class SteeringController:
                  calibration: CalibrationSettings = CalibrationSettings(),
                  settings: ControllerSettings = ControllerSettings(),
                  on_state: Callable[[dict], None] | None = None,
-                 clock: Callable[[], float] = time.monotonic,
-                 wall_ns: Callable[[], int] = time.time_ns):
+                 clock: Callable[[], float] = clocks.monotonic,
+                 wall_ns: Callable[[], int] = clocks.time_ns):
         self.drive = drive
         self.core = SteeringCore(envelope, calibration, settings, drive.settings)
         self.settings = settings
         self.on_state = on_state
         self._clock, self._wall_ns = clock, wall_ns
         self._lock = threading.Lock()
-        self._jobs: queue.Queue = queue.Queue()
+        self._jobs = clocks.Queue()
         self._waiting: dict[object, ReplyFn] = {}          # arms answered later, by token
         self._answers: list[tuple[ReplyFn, dict]] = []     # sent once the lock is released
         self._next_state = float("-inf")
         self._seq = 0                                      # states made so far
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
+        self._stop = clocks.Event()
+        self._threads: list[Any] = []
         drive.add_emcy_listener(self._on_emcy)
         drive.add_bootup_listener(self._on_bootup)
 
@@ -110,7 +111,7 @@ class SteeringController:
         if not threads:
             return
         for name, target in (("steering-control", self._control_loop), ("steering-worker", self._work_loop)):
-            t = threading.Thread(target=target, name=name, daemon=True)
+            t = clocks.Thread(target=target, name=name, daemon=True)
             t.start()
             self._threads.append(t)
 
@@ -122,7 +123,7 @@ class SteeringController:
             self._perform(actions, now)
         self._deliver()
         if hold_s and self._threads:
-            time.sleep(hold_s)               # the control loop sends the power-off meanwhile
+            clocks.sleep(hold_s)             # the control loop sends the power-off meanwhile
         self._stop.set()
         self._jobs.put(_QUIT)
         for t in self._threads:
@@ -145,7 +146,7 @@ class SteeringController:
 
     def request(self, kind: str, payload, timeout: float = 2.0) -> dict:
         """submit() and wait for the answer (for tests and the bench)."""
-        box: queue.Queue = queue.Queue()
+        box = clocks.Queue()
         self.submit(kind, payload, box.put)
         return box.get(timeout=timeout)
 
@@ -181,15 +182,15 @@ class SteeringController:
     # -- the control thread ----------------------------------------------------------------
     def _control_loop(self) -> None:
         period = self.drive.settings.sync_period_s
-        next_t = time.monotonic()
+        next_t = clocks.monotonic()
         while not self._stop.is_set():
             self.control_step()
             next_t += period
-            delay = next_t - time.monotonic()
+            delay = next_t - clocks.monotonic()
             if delay > 0:
                 self._stop.wait(delay)
             elif delay < -10 * period:           # fell far behind (suspended): resync
-                next_t = time.monotonic()
+                next_t = clocks.monotonic()
 
     def control_step(self) -> None:
         """One SYNC period: the core's tick and its frames, and the state when it is due."""

@@ -23,13 +23,13 @@ import calendar
 import datetime as dt
 import logging
 import math
-import queue
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import pynmea2
 
-from viena.common.link import SerialLink
+from viena.common import clock
+from viena.common.link import open_link
 from viena.common.link_reader import LinkReader
 
 log = logging.getLogger(__name__)
@@ -360,7 +360,7 @@ _HANDLERS = {"GGA": _gga, "RMC": _rmc, "VTG": _vtg, "GSA": _gsa, "GSV": _gsv}
 
 
 class NmeaReceiver:
-    """An NMEA receiver on a pyserial URL; epochs to ``on_fix`` or to ``read()``."""
+    """An NMEA receiver on a serial URL (any `open_link` takes); epochs to ``on_fix`` or to ``read()``."""
 
     def __init__(self, url: str, *, on_fix: Callable[[NmeaFix], None] | None = None,
                  on_link_error: Callable[[Exception], None] | None = None,
@@ -369,8 +369,8 @@ class NmeaReceiver:
         self._on_fix = on_fix
         self._on_link_error = on_link_error
         self._decoder = NmeaDecoder()
-        self._fixes: queue.Queue[NmeaFix] = queue.Queue(maxsize=queue_size)
-        self._link = SerialLink(url)
+        self._fixes = clock.Queue(maxsize=queue_size)   # of NmeaFix
+        self._link = open_link(url)
         self._reader = LinkReader(self._link, self._on_bytes, self._on_error, name="nmea")
         self.last_sentence_host_ns = 0
         self.dropped_fixes = 0
@@ -413,7 +413,7 @@ class NmeaReceiver:
                 continue
             try:
                 self._fixes.put_nowait(fix)
-            except queue.Full:
+            except clock.Full:
                 self.dropped_fixes += 1
 
     def _on_error(self, exc: Exception) -> None:

@@ -25,7 +25,7 @@ import numpy as np
 
 from viena.common.config import merge_settings
 from viena.common.errors import ConfigError
-from viena.common.twin.serial_port import SerialEndpoint
+from viena.common.twin.serial_port import SerialEndpoint, serve_twin
 
 from .errors import CommonErrors, GnssErrorModel, SkyModel
 from .nmea_twin import NmeaTwin
@@ -99,14 +99,14 @@ def make_novatel_device(name: str, table: dict, car, service) -> SerialEndpoint:
         raise ConfigError(f"[sim.{name}]: setting 'sbas_enable_value' must be 0 or 1")
     twin = NovatelTwin(None if kwargs["replay"] else car.truth,
                        sbas_enable_value=s["sbas_enable_value"], **kwargs)
-    return SerialEndpoint(twin, service.settings.host, s["port"], name).start()
+    return serve_twin(twin, name, service.settings.host, s["port"])
 
 
 def make_nmea_device(name: str, table: dict, car, service) -> SerialEndpoint:
     """Factory for the sim (kind = "nmea")."""
     s, kwargs = _common(name, table, car, service)
     twin = NmeaTwin(None if kwargs["replay"] else car.truth, rate_hz=s["rate_hz"], **kwargs)
-    return SerialEndpoint(twin, service.settings.host, s["port"], name).start()
+    return serve_twin(twin, name, service.settings.host, s["port"])
 
 
 __all__ = ["NovatelTwin", "NmeaTwin", "make_novatel_device", "make_nmea_device",

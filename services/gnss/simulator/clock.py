@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 import math
-import time
 
+from viena.common import clock
 from viena.services.gnss.driver.gpstime import NS_PER_MS, SECONDS_PER_WEEK, utc_to_gps_ns
 
 WEEK_MS = SECONDS_PER_WEEK * 1000
@@ -21,7 +21,7 @@ class GpsClock:
 
     def anchor(self, now_s: float, gps_ms: float | None = None) -> None:
         if gps_ms is None:
-            gps_ms = utc_to_gps_ns(time.time_ns()) / NS_PER_MS
+            gps_ms = utc_to_gps_ns(clock.time_ns()) / NS_PER_MS
         self.offset_ms = gps_ms - now_s * 1000.0
 
     def ensure(self, now_s: float) -> None:

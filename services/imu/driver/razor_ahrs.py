@@ -25,11 +25,11 @@ from __future__ import annotations
 
 import itertools
 import struct
-import time
 from dataclasses import dataclass
 
 import serial
 
+from viena.common import clock
 from viena.services.imu.driver.frames import Frame
 from viena.services.imu.driver.serial_imu import SerialImu
 
@@ -285,8 +285,8 @@ class RazorAhrs(SerialImu):
             self.link.write(STREAM_OFF)
             self.decoder.expect_sync(token)
             self.link.write(ERRORS_OFF + mode + STREAM_ON + sync_request(token))
-            deadline = time.monotonic() + self.sync_timeout
-            while time.monotonic() < deadline:
+            deadline = clock.monotonic() + self.sync_timeout
+            while clock.monotonic() < deadline:
                 data, t_host = self.link.read(self.timeout)
                 if data:
                     self._ingest(data, t_host)

@@ -1,5 +1,6 @@
-"""What both Razor drivers share: open a link (any pyserial URL), decode its chunks, stamp
-and number frames. Reading is pulled: `read()` waits on the link in the caller's thread.
+"""What both Razor drivers share: open a link (any URL `open_link` takes), decode its
+chunks, stamp and number frames. Reading is pulled: `read()` waits on the link in the
+caller's thread.
 
 A decoder may hold a complete frame until the bytes after it confirm it (the next frame's
 start); when none come, the line falling silent for a frame time confirms it instead, so
@@ -8,12 +9,12 @@ it hands the frame on.
 """
 from __future__ import annotations
 
-import time
 from collections import deque
 from collections.abc import Iterator
 from typing import NamedTuple
 
-from viena.common.link import SerialLink
+from viena.common import clock
+from viena.common.link import open_link
 from viena.services.imu.driver.frames import Frame
 from viena.services.imu.driver.timing import CadenceClock
 
@@ -40,7 +41,7 @@ class SerialImu:
                  rate_hz: float | None = None, silence_s: float | None = None):
         self.url = url
         self.timeout = timeout
-        self.link = SerialLink(url, baudrate or self.BAUDRATE)
+        self.link = open_link(url, baudrate or self.BAUDRATE)
         self.silence_s = (self.FRAME_BYTES * self.link.byte_time_s if silence_s is None
                           else silence_s)
         self.clock = CadenceClock(1.0 / (rate_hz or self.RATE_HZ))
@@ -48,7 +49,7 @@ class SerialImu:
         #: recent chunks as (stream offset just after, t_host_ns), to time frames confirmed late
         self._chunks: deque[tuple[int, int]] = deque(maxlen=256)
         self._received = 0          # stream offset: bytes received since open
-        self._last_bytes_s = 0.0    # monotonic time of the last chunk
+        self._last_bytes_ns = 0     # monotonic time of the last chunk
         self._last_slot: float | None = None
         self._seq = -1
 
@@ -88,20 +89,22 @@ class SerialImu:
         """The next frame, waiting up to `timeout` s (default: the driver's `timeout`);
         None if none came. Raises serial.SerialException when the device is gone."""
         wait = self.timeout if timeout is None else timeout
-        deadline = time.monotonic() + wait
+        # whole ns: a virtual clock wakes the wait for silence exactly when it has lasted
+        deadline_ns = clock.monotonic_ns() + round(wait * 1e9)
+        silence_ns = round(self.silence_s * 1e9)
         while not self._pending:
-            now = time.monotonic()
-            poll_s = self.timeout
+            now_ns = clock.monotonic_ns()
+            poll_ns = round(self.timeout * 1e9)
             if self._awaiting_silence():
-                quiet_s = now - self._last_bytes_s
-                if quiet_s >= self.silence_s:
+                quiet_ns = now_ns - self._last_bytes_ns
+                if quiet_ns >= silence_ns:
                     self._stamp(self._decode_silence())
                     continue
-                poll_s = self.silence_s - quiet_s
-            left_s = deadline - now
-            if left_s <= 0:
+                poll_ns = silence_ns - quiet_ns
+            left_ns = deadline_ns - now_ns
+            if left_ns <= 0:
                 return None
-            data, t_host = self.link.read(min(left_s, poll_s))
+            data, t_host = self.link.read(min(left_ns, poll_ns) / 1e9)
             if data:
                 self._ingest(data, t_host)
         return self._pending.popleft()
@@ -115,7 +118,7 @@ class SerialImu:
 
     def _ingest(self, data: bytes, t_host_ns: int) -> None:
         self._received += len(data)
-        self._last_bytes_s = time.monotonic()
+        self._last_bytes_ns = clock.monotonic_ns()
         self._chunks.append((self._received, t_host_ns))
         self._stamp(self._decode(data))
 

@@ -8,7 +8,7 @@
 """
 from viena.common.config import merge_settings
 from viena.common.errors import ConfigError
-from viena.common.twin.serial_port import SerialEndpoint
+from viena.common.twin.serial_port import SerialEndpoint, serve_twin
 from viena.services.imu.model.imu_errors import NO_ERRORS, ImuErrors
 from viena.services.imu.simulator.board import CAR_RAZOR_ERRORS, LISBON_FIELD_ENU_NT, Measurement, RazorBoard
 from viena.services.imu.simulator.razor_ahrs_twin import RazorAhrsTwin
@@ -61,7 +61,7 @@ def make_razor_device(name: str, table: dict, car, service) -> SerialEndpoint:
         twin = make_twin(s["source"], car.truth, **kwargs)
     except (OSError, ValueError) as exc:
         raise ConfigError(f"{source}: {exc}") from None
-    return SerialEndpoint(twin, service.settings.host, s["port"], name).start()
+    return serve_twin(twin, name, service.settings.host, s["port"])
 
 
 __all__ = ["make_razor_device", "TWIN_SETTINGS", "RazorBoard", "Measurement", "LISBON_FIELD_ENU_NT", "RazorTwin",

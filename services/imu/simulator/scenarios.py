@@ -10,11 +10,11 @@ the driver would deliver from the board.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 
 import numpy as np
 
+from viena.common import clock
 from viena.common.geodesy import normal_gravity
 from viena.common.rotation import quat_from_euler, quat_to_matrix
 from viena.services.imu.driver.frames import FrameDecoder
@@ -36,7 +36,7 @@ class Script:
                  t0_ns: int | None = None):
         self.motion, self.duration_s = motion, duration_s
         self.gravity = normal_gravity(IST_ORIGIN[0], IST_ORIGIN[2]) if gravity is None else gravity
-        self.t0_ns = time.time_ns() if t0_ns is None else t0_ns
+        self.t0_ns = clock.time_ns() if t0_ns is None else t0_ns
         self.now = 0.0
 
     def __call__(self) -> Truth:
@@ -55,7 +55,7 @@ def fixed_truth(yaw: float = 0.0, pitch: float = 0.0, roll: float = 0.0, gyro=(0
     """The car standing with this attitude (rad) and angular rate (rad/s, body axes)."""
     zero = np.zeros(3)
     g = normal_gravity(IST_ORIGIN[0], IST_ORIGIN[2]) if gravity is None else gravity
-    return Truth(time.time_ns(), 0.0, IST_ORIGIN, zero, zero, zero, quat_from_euler(yaw, pitch, roll),
+    return Truth(clock.time_ns(), 0.0, IST_ORIGIN, zero, zero, zero, quat_from_euler(yaw, pitch, roll),
                  np.array(gyro, float), 0.0, 0.0, g)
 
 

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import math
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from viena.common import clock
 from viena.common.geodesy import normal_gravity
 from viena.common.rotation import quat_from_euler
 from viena.common.settings import setting
@@ -49,7 +49,7 @@ class SimCar:
         self.route = route or default_route()
         self.origin = tuple(origin)
         self.gravity = normal_gravity(origin[0], origin[2])
-        self._t0_ns = time.time_ns() if start_time_ns is None else int(start_time_ns)
+        self._t0_ns = clock.time_ns() if start_time_ns is None else int(start_time_ns)
         x, y, yaw = self.route.start_pose()
         self._x, self._y, self._yaw = x, y, yaw
         self._v = 0.0
@@ -68,7 +68,7 @@ class SimCar:
     def start_clock(self, now_ns: int | None = None) -> None:
         """Tie simulation time zero to `now_ns` (UTC): call when stepping really begins,
         so truth times agree with the wall clock the devices' clocks follow."""
-        self._t0_ns = (time.time_ns() if now_ns is None else int(now_ns)) - int(round(self._t * 1e9))
+        self._t0_ns = (clock.time_ns() if now_ns is None else int(now_ns)) - int(round(self._t * 1e9))
 
     def driver_wheel_angle(self) -> float:
         """The wheel angle a person following the route would steer to now (rad): what

@@ -37,6 +37,7 @@ import can
 import canopen
 from canopen.profiles.p402 import BaseNode402
 
+from viena.common import clock as clocks
 from viena.common import urlhandler
 from viena.common.settings import setting
 from viena.services.steering.driver import ds402
@@ -109,14 +110,14 @@ class EposDrive:
     """One EPOS on one CAN bus. Thread-safe: any thread may command, one loop cycles."""
 
     def __init__(self, settings: DriveSettings | None = None, bus=None,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = clocks.monotonic):
         self.settings = settings or DriveSettings()
         self._clock = clock
         self._bus = bus
         self.network: canopen.Network | None = None
         self.node: BaseNode402 | None = None
         self._tx_lock = threading.RLock()
-        self._fb_lock = threading.Condition()
+        self._fb_lock = threading.Condition()  # noqa: TID251 - wait_feedback's, for tests
         self._feedback = Feedback()
         self._controlword = ds402.CW_DISABLE_VOLTAGE
         self._target_qc = 0
@@ -334,11 +335,13 @@ class EposDrive:
             return self._feedback
 
     def wait_feedback(self, predicate: Callable[[Feedback], bool], timeout_s: float) -> bool:
-        """Block until a TPDO makes predicate(feedback) true, or timeout."""
-        end = time.monotonic() + timeout_s
+        """Block until a TPDO makes predicate(feedback) true, or timeout (for tests). A
+        threading.Condition waits on the wall clock, so the deadline is the wall clock's:
+        not for threads of the lockstep runner."""
+        end = time.monotonic() + timeout_s  # noqa: TID251 - the Condition's clock
         with self._fb_lock:
             while not predicate(self._feedback):
-                left = end - time.monotonic()
+                left = end - time.monotonic()  # noqa: TID251 - the Condition's clock
                 if left <= 0:
                     return False
                 self._fb_lock.wait(left)

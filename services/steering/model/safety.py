@@ -32,9 +32,9 @@ import hashlib
 import hmac
 import logging
 import math
-import secrets
 from dataclasses import dataclass, field
 
+from viena.common import clock
 from viena.common.settings import setting
 from viena.services.steering.model.lateral import LateralSettings, Limits, limits
 from viena.services.steering.model.requests import BadSetpoint, Setpoint
@@ -154,7 +154,7 @@ class Envelope:
         if refusal:
             raise PermissionError(refusal)
         if not self.armed:
-            self.lease = secrets.token_urlsafe(16)
+            self.lease = clock.token_urlsafe(16)   # unguessable on the car, the seed's in lockstep
             self.last_seq = -1
             self.goal_deg = self.target_deg = self._goal_used = float(measured_deg)
             self.target_t = self.armed_t = self._goal_t = now_s

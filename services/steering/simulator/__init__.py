@@ -7,7 +7,9 @@
 The sim runs the twin on an in-process python-can `virtual` channel and serves that bus as
 a serial CAN adapter (common/twin/slcan_hub.py); the steering service opens it with
 `interface = "slcan"`, `channel = "socket://127.0.0.1:PORT"`. The twin turns the car's
-wheels through `car.set_wheel_source`.
+wheels through `car.set_wheel_source`. In the lockstep runner (the sim's host "mem") the
+twin is on the `lockstep` CAN interface instead, on a channel named after the device, and
+the steering opens that channel with `interface = "lockstep"`.
 """
 from __future__ import annotations
 
@@ -32,24 +34,26 @@ _channels = itertools.count()
 
 
 class EposDevice:
-    """A twin on its own virtual CAN bus, served to other processes by an slcan hub."""
+    """A twin on its own virtual CAN bus, served to other processes by an slcan hub (or,
+    in the lockstep runner, on a lockstep channel of this process: no hub)."""
 
-    def __init__(self, twin: EposTwin, hub: SlcanHub, network: canopen.Network):
-        self.twin, self.hub, self.network = twin, hub, network
+    def __init__(self, twin: EposTwin, hub: SlcanHub | None, network: canopen.Network, channel: str = ""):
+        self.twin, self.hub, self.network, self.channel = twin, hub, network, channel
 
     @property
     def url(self) -> str:
-        """The steering service's slcan channel."""
-        return self.hub.url
+        """The steering service's slcan channel (the lockstep channel's name in the runner)."""
+        return self.hub.url if self.hub is not None else f"lockstep:{self.channel}"
 
     @property
     def port(self) -> int:
-        return self.hub.port
+        return self.hub.port if self.hub is not None else 0
 
     def stop(self) -> None:
         self.twin.stop()
         self.network.disconnect()
-        self.hub.stop()
+        if self.hub is not None:
+            self.hub.stop()
 
 
 def start_twin_on_hub(settings: TwinSettings | None = None, host: str = "127.0.0.1",
@@ -62,6 +66,14 @@ def start_twin_on_hub(settings: TwinSettings | None = None, host: str = "127.0.0
     network.connect(interface="virtual", channel=channel, receive_own_messages=False)
     twin = EposTwin(network, settings).start()
     return EposDevice(twin, hub, network)
+
+
+def start_twin_in_lockstep(settings: TwinSettings | None, channel: str) -> EposDevice:
+    """A running twin on the lockstep CAN channel `channel` (viena.common.lockstep.can)."""
+    network = canopen.Network()
+    network.connect(interface="lockstep", channel=channel, receive_own_messages=False)
+    twin = EposTwin(network, settings).start()
+    return EposDevice(twin, None, network, channel)
 
 
 def make_epos_device(name: str, table: dict, car, service) -> EposDevice:
@@ -84,8 +96,10 @@ def make_epos_device(name: str, table: dict, car, service) -> EposDevice:
         raise ConfigError(f"{source}: {exc}") from None
     if logging.getLogger().getEffectiveLevel() > logging.DEBUG:
         logging.getLogger("canopen").setLevel(logging.WARNING)   # a line per SDO otherwise
-    device = start_twin_on_hub(settings, host=service.settings.host,
-                               port=int(port), bitrate=int(bitrate))
+    if service.settings.host == "mem":
+        device = start_twin_in_lockstep(settings, name)
+    else:
+        device = start_twin_on_hub(settings, host=service.settings.host, port=int(port), bitrate=int(bitrate))
     car.set_wheel_source(device.twin.wheel_angle_rad)
     device.twin.hands = car.driver_wheel_angle       # a person drives while the drive is off
     return device

@@ -25,13 +25,14 @@ from __future__ import annotations
 import logging
 import math
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import canopen
 from canopen.sdo import SdoAbortedError
 
+from viena.common import clock as clocks
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import (
     ERROR_REGISTER,
@@ -82,14 +83,14 @@ class EposTwin:
     """One simulated EPOS on a canopen Network (any python-can bus: virtual, slcan, ...)."""
 
     def __init__(self, network: canopen.Network, settings: TwinSettings | None = None,
-                 clock: Callable[[], float] = time.monotonic, eds: str = str(EDS_PATH)):
+                 clock: Callable[[], float] = clocks.monotonic, eds: str = str(EDS_PATH)):
         self.network = network
         self.settings = s = settings or TwinSettings()
         self._clock = clock
         self._eds = eds
         self._lock = threading.RLock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._stop = clocks.Event()
+        self._thread: Any = None
         self.node: canopen.LocalNode | None = None
         self.plant = PositionPlant(s.plant, s.power_up_qc)
         self.powered = False
@@ -103,7 +104,7 @@ class EposTwin:
     # -- life -----------------------------------------------------------------------------
     def start(self) -> EposTwin:
         self.power_on()
-        self._thread = threading.Thread(target=self._run, name="epos-twin", daemon=True)
+        self._thread = clocks.Thread(target=self._run, name="epos-twin", daemon=True)
         self._thread.start()
         return self
 
@@ -519,11 +520,12 @@ class EposTwin:
     def _on_nmt(self, can_id, data, timestamp) -> None:
         if len(data) < 2 or data[1] not in (0, self.settings.node_id):
             return
+        command = data[0]
+        if command == NMT_RESET_NODE:       # a reboot takes the lock: started from outside it
+            clocks.Thread(target=self.power_cycle, daemon=True).start()
+            return
         with self._lock:
-            command = data[0]
-            if command == NMT_RESET_NODE:
-                threading.Thread(target=self.power_cycle, daemon=True).start()
-            elif command == NMT_START:
+            if command == NMT_START:
                 self._load_pdos()
             elif command in (NMT_STOP, NMT_PREOP, NMT_RESET_COMM):
                 self._tpdo_last.clear()

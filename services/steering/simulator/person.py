@@ -7,9 +7,9 @@ once, and a sweep the service threw away would wait for ever.
 """
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 
+from viena.common import clock as clocks
 from viena.services.steering.simulator.epos_twin import EposTwin
 
 #: how long the steering says "calibrating" before the person notices and sweeps again
@@ -18,7 +18,7 @@ NOTICES_S = 2.0
 
 class PersonAtTheWheel:
     def __init__(self, wheels: Sequence[EposTwin], notices_s: float = NOTICES_S,
-                 clock: Callable[[], float] = time.monotonic):
+                 clock: Callable[[], float] = clocks.monotonic):
         self.wheels = list(wheels)
         self.notices_s = notices_s
         self.clock = clock

@@ -20,15 +20,14 @@ against what was asked in the receiver's own words.
 from __future__ import annotations
 
 import logging
-import queue
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import serial
 
-from viena.common.link import SerialLink
+from viena.common import clock
+from viena.common.link import open_link
 from viena.common.link_reader import LinkReader
 
 from .ascii import AsciiError, ConfigEntry, config_entry, message_of
@@ -118,12 +117,12 @@ class _Pending:
 
     def __init__(self, message_id: int):
         self.message_id = message_id
-        self.event = threading.Event()
+        self.event = clock.Event()
         self.response: Response | None = None
 
 
 class NovatelReceiver:
-    """Binary OEM4 receiver on a pyserial URL.
+    """Binary OEM4 receiver on a serial URL (any `open_link` takes).
 
     ``on_log(LogMessage)`` is called from the reader thread for every decoded log; without
     it, logs queue up for ``read()``. ``on_link_error(exc)`` reports a port that failed.
@@ -139,10 +138,13 @@ class NovatelReceiver:
         self._on_link_error = on_link_error
         self._decoder = FrameDecoder(max_body_length)
         self.stats = ReceiverStats()
-        self._logs: queue.Queue[LogMessage] = queue.Queue(maxsize=queue_size)
-        self._link = SerialLink(url)
+        self._logs = clock.Queue(maxsize=queue_size)    # of LogMessage
+        self._link = open_link(url)
         self._reader = LinkReader(self._link, self._on_bytes, self._on_error, name="novatel")
-        self._command_lock = threading.Lock()
+        # one command at a time; held across the wait for the response, so it is a clock
+        # queue of one token (a thread waiting for it parks on a virtual clock, where a
+        # threading.Lock would hold the whole simulation up)
+        self._command_slot = clock.Queue(maxsize=1)
         self._pending: _Pending | None = None
         self._state_lock = threading.Lock()
         self.last_frame_host_ns = 0
@@ -184,7 +186,8 @@ class NovatelReceiver:
         """Send a command and wait for its response; OK returns it, anything else raises
         CommandError (with the receiver's text), silence raises CommandTimeout."""
         timeout = self.command_timeout if timeout is None else timeout
-        with self._command_lock:
+        self._command_slot.put(None)
+        try:
             pending = _Pending(cmd.MESSAGE_ID)
             with self._state_lock:
                 self._pending = pending
@@ -194,6 +197,8 @@ class NovatelReceiver:
             finally:
                 with self._state_lock:
                     self._pending = None
+        finally:
+            self._command_slot.get_nowait()
         if not answered:
             self.stats.command_failures += 1
             raise CommandTimeout(f"{cmd.name}: no response within {timeout:.2f} s")
@@ -287,9 +292,9 @@ class NovatelReceiver:
 
     def _reset_port_by_break(self) -> None:
         self._link.send_break(BREAK_S)
-        time.sleep(BREAK_GAP_S)
+        clock.sleep(BREAK_GAP_S)
         self._link.send_break(BREAK_S)
-        time.sleep(BREAK_SETTLE_S)
+        clock.sleep(BREAK_SETTLE_S)
 
     def _unlogall_at(self, config: StartupConfig) -> None:
         """UNLOGALL at the factory rate; a receiver whose saved configuration kept the
@@ -374,7 +379,7 @@ class NovatelReceiver:
             return
         try:
             self._logs.put_nowait(message)
-        except queue.Full:
+        except clock.Full:
             stats.dropped_logs += 1
 
     def _sync_decoder_stats(self) -> None:

@@ -1,0 +1,511 @@
+"""A virtual clock that runs real threads one at a time and jumps from event to event.
+
+The services keep their threads: a GNSS reader, an estimator worker, the steering's control
+loop. Under `VirtualClock` each of them is a real OS thread, but only the one holding the
+baton runs. A thread gives the baton away only where it would wait on the car: in
+`clock.sleep`, `Event.wait`, `Queue.get`/`put` and `Thread.join` (viena.common.clock). Then
+the next ready thread runs, first come first served; when none is ready, time jumps to the
+earliest deadline. Computing takes no virtual time. This is PX4 SITL's lockstep scheduler
+and trio's MockClock with autojump, made deterministic: the order threads run in depends
+only on the order they waited and woke, never on the OS, so the same inputs give the same
+bytes.
+
+The thread that creates the clock and calls `enter()` (a test, `viena sim run`) is the
+driver: it runs the simulation by waiting (`run_for`, `run_until`), and is told when the
+simulation deadlocks (everyone waits, nothing is due) or when a thread keeps the baton for
+longer than `watchdog_s` of real time (a wait that bypassed the clock), with every
+thread's stack.
+
+Threads belong to a group (a program of the car). `kill(group)` is SIGKILL: its threads
+never run again, nothing of theirs is cleaned up. `close()` ends the simulation and
+unwinds every thread it still holds with `Killed`.
+"""
+from __future__ import annotations
+
+import base64
+import faulthandler
+import heapq
+import itertools
+import logging
+import random
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from viena.common import clock as clocks
+
+log = logging.getLogger(__name__)
+
+#: where virtual monotonic time starts: far from 0, as a booted machine's is
+START_NS = 1_000 * 1_000_000_000
+#: the Unix time the simulation starts at (2026-01-01T00:00:00Z): fixed, so runs repeat
+EPOCH_NS = 1_767_225_600 * 1_000_000_000
+
+
+class Killed(BaseException):
+    """Raised in a simulated thread to unwind it when the simulation closes. A
+    BaseException, so a service's `except Exception` does not swallow it."""
+
+
+class Deadlock(RuntimeError):
+    """Every simulated thread waits and nothing is due: time cannot move."""
+
+
+class Stuck(RuntimeError):
+    """A simulated thread kept the baton for longer than the watchdog allows: it blocked
+    outside the clock (a real lock, a socket) or loops without waiting."""
+
+
+class _Task:
+    """One simulated thread."""
+
+    __slots__ = ("name", "group", "go", "woken", "wake_entry", "done", "killed", "ident", "error", "unwound")
+
+    def __init__(self, name: str, group: str):
+        self.name, self.group = name, group
+        # released when this task may run: a lock held from the start is the cheapest
+        # one-shot signal between two threads (a Semaphore is a Condition in Python)
+        self.go = threading.Lock()
+        self.go.acquire()
+        self.woken = False                # why the last park ended: woken (True) or timed out
+        self.wake_entry: _Entry | None = None
+        self.done = False
+        self.killed = False
+        self.ident: int | None = None
+        self.error: BaseException | None = None  # raised in the driver at its next park
+        self.unwound: threading.Event | None = None  # set once close() has unwound it
+
+    def __repr__(self) -> str:
+        return f"<task {self.group}/{self.name}>"
+
+
+class _Entry:
+    """Something due at a time: a parked task's timeout, or a callback."""
+
+    __slots__ = ("task", "callback", "cancelled")
+
+    def __init__(self, task: _Task | None = None, callback: Callable[[], None] | None = None):
+        self.task, self.callback, self.cancelled = task, callback, False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+class VirtualClock:
+    """See the module docstring. `clock.monotonic()` and friends answer from here on the
+    threads this clock runs."""
+
+    def __init__(self, *, start_ns: int = START_NS, epoch_ns: int = EPOCH_NS, watchdog_s: float = 30.0,
+                 realtime: float | None = None, seed: int = 0):
+        self.now_ns = start_ns
+        self._start_ns, self._epoch_ns = start_ns, epoch_ns
+        self.watchdog_s = watchdog_s
+        self.realtime = realtime
+        self._ready: deque[_Task] = deque()
+        self._heap: list[tuple[int, int, _Entry]] = []
+        self._seq = itertools.count()
+        self._tasks: dict[int, _Task] = {}       # by thread ident
+        self._all: list[_Task] = []
+        self._driver: _Task | None = None
+        self._group = "driver"
+        self._closing = False
+        self._pace: tuple[float, int] | None = None  # (real monotonic, virtual ns) at the last anchor
+        self.errors: list[tuple[str, BaseException]] = []  # (thread, exception) that ended a thread
+        self.switches = 0
+        self._tokens = random.Random(seed)
+
+    # -- the clock interface (viena.common.clock) ----------------------------------------------
+    def monotonic_ns(self) -> int:
+        return self.now_ns
+
+    def time_ns(self) -> int:
+        return self._epoch_ns + self.now_ns - self._start_ns
+
+    def sleep(self, seconds: float) -> None:
+        me = self._me()
+        if seconds <= 0:
+            self._ready.append(me)     # let the others that are ready run first
+            self._switch(me)
+            self._raise_pending(me)
+            return
+        self._park(me, self.now_ns + round(seconds * 1e9))
+
+    def token_urlsafe(self, nbytes: int) -> str:
+        return base64.urlsafe_b64encode(self._tokens.randbytes(nbytes)).rstrip(b"=").decode()
+
+    def event(self) -> VirtualEvent:
+        return VirtualEvent(self)
+
+    def queue(self, maxsize: int = 0) -> VirtualQueue:
+        return VirtualQueue(self, maxsize)
+
+    def thread(self, target: Callable, name: str | None, args: tuple, kwargs: dict | None,
+               daemon: bool) -> VirtualThread:
+        return VirtualThread(self, target, name, args, kwargs or {})
+
+    # -- for the driver -----------------------------------------------------------------------
+    def enter(self) -> None:
+        """Make the calling thread this simulation's driver (the one that runs it)."""
+        if self._driver is not None:
+            raise RuntimeError("this clock has a driver already")
+        task = _Task(threading.current_thread().name, "driver")
+        task.ident = threading.get_ident()
+        self._driver = task
+        self._tasks[task.ident] = task
+        self._all.append(task)
+        clocks.adopt(self)
+        if self.realtime:
+            self._pace = (time.monotonic(), self.now_ns)
+
+    def __enter__(self) -> VirtualClock:
+        self.enter()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def run_for(self, seconds: float) -> None:
+        """Let the simulation run `seconds` of virtual time."""
+        self.sleep(seconds)
+
+    def run_until(self, condition: Callable[[], bool], within_s: float, step_s: float = 0.05) -> bool:
+        """Run until `condition()` holds (checked every `step_s` of virtual time) or
+        `within_s` have passed; says which."""
+        end = self.now_ns + round(within_s * 1e9)
+        while not condition():
+            if self.now_ns >= end:
+                return False
+            self.sleep(min(step_s, (end - self.now_ns) / 1e9))
+        return True
+
+    @contextmanager
+    def group(self, name: str) -> Iterator[None]:
+        """Threads started inside belong to program `name` (threads they start, too)."""
+        before, self._group = self._group, name
+        try:
+            yield
+        finally:
+            self._group = before
+
+    def kill(self, group: str) -> int:
+        """What SIGKILL does to a program: its threads never run again and nothing of
+        theirs is cleaned up. Returns how many threads it stopped."""
+        killed = 0
+        for task in self._all:
+            if task.group == group and not task.done and not task.killed:
+                task.killed = True
+                killed += 1
+                if task.wake_entry is not None:
+                    task.wake_entry.cancel()
+        self._ready = deque(t for t in self._ready if not t.killed)
+        return killed
+
+    def call_at(self, when_ns: int, callback: Callable[[], None]) -> _Entry:
+        """Run `callback` at virtual time `when_ns`, on whichever thread moves time there.
+        It must not wait. Returns a handle with `cancel()`."""
+        entry = _Entry(callback=callback)
+        heapq.heappush(self._heap, (max(when_ns, self.now_ns), next(self._seq), entry))
+        return entry
+
+    def threads(self) -> list[str]:
+        """The simulated threads still alive, as group/name."""
+        return [f"{t.group}/{t.name}" for t in self._all if not t.done and not t.killed]
+
+    def close(self) -> None:
+        """End the simulation: unwind every simulated thread (raising `Killed` where it
+        waits), give the driver back to the wall clock."""
+        if self._closing:
+            return
+        self._closing = True
+        for task in self._all:
+            if task is self._driver or task.done:
+                continue
+            task.unwound = threading.Event()
+            task.go.release()
+            if not task.unwound.wait(2.0):
+                log.warning("simulated thread %r did not unwind", task)
+        if self._driver is not None and self._driver.ident is not None:
+            self._tasks.pop(self._driver.ident, None)
+            clocks.release()
+            self._driver.done = True
+
+    # -- the scheduler ----------------------------------------------------------------------
+    def _me(self) -> _Task:
+        task = self._tasks.get(threading.get_ident())
+        if task is None:
+            raise RuntimeError("a virtual clock object was used from a thread the clock does not run")
+        return task
+
+    def _park(self, me: _Task, deadline_ns: int | None) -> bool:
+        """Give the baton away until woken (True) or `deadline_ns` (False)."""
+        if self._closing:
+            raise Killed()
+        me.woken = False
+        if deadline_ns is not None:
+            entry = _Entry(task=me)
+            me.wake_entry = entry
+            heapq.heappush(self._heap, (deadline_ns, next(self._seq), entry))
+        self._switch(me)
+        me.wake_entry = None
+        self._raise_pending(me)
+        return me.woken
+
+    def _raise_pending(self, me: _Task) -> None:
+        if self._closing:
+            raise Killed()
+        if me.error is not None:
+            error, me.error = me.error, None
+            raise error
+
+    def _wake(self, task: _Task) -> None:
+        """Make a parked task ready (from the running thread: an Event set, a put)."""
+        if task.killed or task.done:
+            return
+        task.woken = True
+        if task.wake_entry is not None:
+            task.wake_entry.cancel()
+            task.wake_entry = None
+        self._ready.append(task)
+
+    def _switch(self, me: _Task) -> None:
+        """Hand the baton to the next task and wait for it to come back."""
+        nxt = self._next(me)
+        if nxt is me:
+            return
+        self.switches += 1
+        nxt.go.release()
+        self._wait_for_baton(me)
+
+    def _wait_for_baton(self, me: _Task) -> None:
+        if me is not self._driver:
+            me.go.acquire()
+            return
+        if not me.go.acquire(timeout=self.watchdog_s):
+            print(f"virtual clock: no thread gave the baton back within {self.watchdog_s} s "
+                  f"at t={self.now_ns / 1e9:.3f}; every thread:", file=sys.stderr, flush=True)
+            faulthandler.dump_traceback(all_threads=True)
+            raise Stuck(f"a simulated thread kept running for {self.watchdog_s} s of real time "
+                        f"without waiting on the clock (stacks on stderr)")
+
+    def _next(self, me: _Task) -> _Task:
+        """The task to run next, moving time on (and running callbacks) while none is ready."""
+        while True:
+            while self._ready:
+                task = self._ready.popleft()
+                if not task.killed and not task.done:
+                    return task
+            if not self._heap:
+                return self._deadlock(me)
+            when, _, entry = heapq.heappop(self._heap)
+            if entry.cancelled:
+                continue
+            if when > self.now_ns:
+                self._pace_to(when)
+                self.now_ns = when
+            if entry.task is not None:
+                entry.task.wake_entry = None
+                if not entry.task.killed:
+                    self._ready.append(entry.task)
+            elif entry.callback is not None:
+                try:
+                    entry.callback()
+                except Exception as exc:  # a twin's or a timer's fault: the run goes on, the test sees it
+                    log.exception("callback at t=%.6f failed", when / 1e9)
+                    self.errors.append(("callback", exc))
+
+    def _deadlock(self, me: _Task) -> _Task:
+        driver = self._driver
+        waiting = ", ".join(self.threads())
+        error = Deadlock(f"every simulated thread waits and nothing is due at t={self.now_ns / 1e9:.3f} "
+                         f"({waiting})")
+        if driver is None or driver.done:
+            raise error
+        driver.error = error
+        return driver
+
+    def _pace_to(self, when_ns: int) -> None:
+        if not self.realtime or self._pace is None:
+            return
+        real0, virtual0 = self._pace
+        due = real0 + (when_ns - virtual0) / 1e9 / self.realtime
+        late = due - time.monotonic()
+        if late > 0:
+            time.sleep(late)
+
+    # -- threads -------------------------------------------------------------------------------
+    def _spawn(self, thread: VirtualThread) -> _Task:
+        creator = self._me()
+        task = _Task(thread.name, self._group if creator is self._driver else creator.group)
+        self._all.append(task)
+        real = threading.Thread(target=self._bootstrap, args=(task, thread), name=thread.name, daemon=True)
+        real.start()
+        self._ready.append(task)
+        return task
+
+    def _bootstrap(self, task: _Task, thread: VirtualThread) -> None:
+        task.ident = threading.get_ident()
+        self._tasks[task.ident] = task
+        clocks.adopt(self)
+        task.go.acquire()
+        try:
+            if self._closing:
+                raise Killed()
+            thread._target(*thread._args, **thread._kwargs)
+        except Killed:
+            pass
+        except BaseException as exc:
+            self.errors.append((f"{task.group}/{task.name}", exc))
+            log.exception("simulated thread %s/%s failed", task.group, task.name)
+        finally:
+            self._exit(task, thread)
+
+    def _exit(self, task: _Task, thread: VirtualThread) -> None:
+        task.done = True
+        if task.ident is not None:
+            self._tasks.pop(task.ident, None)
+        clocks.release()
+        if self._closing:
+            if task.unwound is not None:
+                task.unwound.set()
+            return
+        thread._finished.set()
+        nxt = self._next(task)
+        if nxt is not task:
+            self.switches += 1
+            nxt.go.release()
+
+
+class VirtualEvent:
+    """`threading.Event` on the virtual clock."""
+
+    def __init__(self, clock: VirtualClock):
+        self._clock = clock
+        self._flag = False
+        self._waiters: list[_Task] = []
+
+    def is_set(self) -> bool:
+        return self._flag
+
+    def set(self) -> None:
+        self._flag = True
+        waiters, self._waiters = self._waiters, []
+        for task in waiters:
+            self._clock._wake(task)
+
+    def clear(self) -> None:
+        self._flag = False
+
+    def wait(self, timeout: float | None = None) -> bool:
+        if self._flag:
+            return True
+        if timeout is not None and timeout <= 0:
+            return False
+        clock = self._clock
+        me = clock._me()
+        self._waiters.append(me)
+        deadline = None if timeout is None else clock.now_ns + round(timeout * 1e9)
+        try:
+            woken = clock._park(me, deadline)
+        finally:
+            if me in self._waiters:
+                self._waiters.remove(me)
+        return woken or self._flag
+
+
+class VirtualQueue:
+    """`queue.Queue` on the virtual clock (raises `queue.Empty` and `queue.Full`)."""
+
+    def __init__(self, clock: VirtualClock, maxsize: int = 0):
+        self._clock = clock
+        self.maxsize = maxsize
+        self._items: deque = deque()
+        self._getters: deque[_Task] = deque()
+        self._putters: deque[_Task] = deque()
+
+    def qsize(self) -> int:
+        return len(self._items)
+
+    def empty(self) -> bool:
+        return not self._items
+
+    def full(self) -> bool:
+        return 0 < self.maxsize <= len(self._items)
+
+    def put(self, item: Any, block: bool = True, timeout: float | None = None) -> None:
+        if self.full():
+            self._wait(self._putters, self.full, block, timeout, clocks.Full)
+        self._items.append(item)
+        self._wake_one(self._getters)
+
+    def get(self, block: bool = True, timeout: float | None = None) -> Any:
+        if not self._items:
+            self._wait(self._getters, self.empty, block, timeout, clocks.Empty)
+        item = self._items.popleft()
+        self._wake_one(self._putters)
+        return item
+
+    def put_nowait(self, item: Any) -> None:
+        self.put(item, block=False)
+
+    def get_nowait(self) -> Any:
+        return self.get(block=False)
+
+    def _wait(self, waiters: deque[_Task], blocked: Callable[[], bool], block: bool, timeout: float | None,
+              error: type[Exception]) -> None:
+        clock = self._clock
+        if not block or (timeout is not None and timeout <= 0):
+            raise error()
+        me = clock._me()
+        deadline = None if timeout is None else clock.now_ns + round(timeout * 1e9)
+        while blocked():
+            if deadline is not None and clock.now_ns >= deadline:
+                raise error()
+            waiters.append(me)
+            try:
+                clock._park(me, deadline)
+            finally:
+                if me in waiters:
+                    waiters.remove(me)
+
+    def _wake_one(self, waiters: deque[_Task]) -> None:
+        if waiters:
+            self._clock._wake(waiters.popleft())
+
+
+class VirtualThread:
+    """`threading.Thread` on the virtual clock: scheduled by it from `start()`."""
+
+    def __init__(self, clock: VirtualClock, target: Callable, name: str | None, args: tuple, kwargs: dict):
+        self._clock = clock
+        self._target, self._args, self._kwargs = target, args, kwargs
+        self.name = name or f"vthread-{next(_names)}"
+        self.daemon = True
+        self._task: _Task | None = None
+        self._finished = VirtualEvent(clock)
+
+    def start(self) -> None:
+        if self._task is not None:
+            raise RuntimeError("threads can only be started once")
+        self._task = self._clock._spawn(self)
+
+    def is_alive(self) -> bool:
+        return self._task is not None and not self._task.done and not self._task.killed
+
+    def join(self, timeout: float | None = None) -> None:
+        if self._task is None:
+            raise RuntimeError("cannot join thread before it is started")
+        if self._task is self._clock._tasks.get(threading.get_ident()):
+            raise RuntimeError("cannot join current thread")
+        if self.is_alive():
+            self._finished.wait(timeout)
+
+    @property
+    def ident(self) -> int | None:
+        return self._task.ident if self._task else None
+
+
+_names = itertools.count(1)
