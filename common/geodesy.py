@@ -43,7 +43,7 @@ class LocalFrame:
         self._origin_ecef = [float(v) for v in pymap3d.geodetic2ecef(lat_deg, lon_deg, height_m)]
         self._cov_cache: dict = {}
         self.gravity_mps2 = normal_gravity(lat_deg, height_m)
-        self._anchor = None
+        self._anchors: dict[tuple[int, int, int], tuple] = {}
 
     @classmethod
     def at_ecef(cls, ecef_m) -> LocalFrame:
@@ -69,20 +69,25 @@ class LocalFrame:
 
         pymap3d's exact answer costs ~0.2 ms (it iterates), too much for every published
         state on a Pi. Near an anchor point solved exactly, geodetic coordinates are linear
-        in ENU to second order: within ANCHOR_RADIUS_M of it the error is d^2 / R < 0.02 mm.
-        The anchor follows the car.
+        in ENU to second order: within 8.7 m of it (the anchors sit on a 10 m grid) the error
+        is d^2 / R < 0.02 mm. The anchor is the grid point nearest the point, so the answer
+        depends on the point alone, not on which points came before: two runs of a
+        simulation give the same bytes whatever ran earlier in the process.
         """
         e, n, u = float(e), float(n), float(u)          # plain floats out, even from numpy
-        a = self._anchor
-        if a is None or (e - a[0]) ** 2 + (n - a[1]) ** 2 + (u - a[2]) ** 2 > self.ANCHOR_RADIUS_M ** 2:
-            a = self._anchor = self._make_anchor(e, n, u)
+        cell = (round(e / self.ANCHOR_GRID_M), round(n / self.ANCHOR_GRID_M), round(u / self.ANCHOR_GRID_M))
+        a = self._anchors.get(cell)
+        if a is None:
+            if len(self._anchors) > 64:
+                self._anchors.clear()
+            a = self._anchors[cell] = self._make_anchor(*(c * self.ANCHOR_GRID_M for c in cell))
         de, dn, du = e - a[0], n - a[1], u - a[2]
         j = a[6]
         return (a[3] + j[0] * de + j[1] * dn + j[2] * du,
                 a[4] + j[3] * de + j[4] * dn + j[5] * du,
                 a[5] + j[6] * de + j[7] * dn + j[8] * du)
 
-    ANCHOR_RADIUS_M = 10.0
+    ANCHOR_GRID_M = 10.0
 
     def _make_anchor(self, e: float, n: float, u: float):
         base = self.geodetic_of_enu_exact(e, n, u)
@@ -119,20 +124,25 @@ class LocalFrame:
         return cov
 
 
-_near: LocalFrame | None = None
+#: local frames for geodetic_of_ecef, by the 10 km ECEF cell their origin is the centre of
+FRAME_GRID_M = 10_000.0
+_frames: dict[tuple[int, int, int], LocalFrame] = {}
 
 
 def geodetic_of_ecef(x: float, y: float, z: float) -> tuple[float, float, float]:
     """(lat deg, lon deg, ellipsoidal height m) of an ECEF point, to a millimetre.
 
-    Fast for points that follow each other (a receiver's fixes): they share a local frame
-    re-centred when a point is 100 km away. Points far from the Earth's surface (a
-    receiver's no-fix X=100, Y=Z=0) go to pymap3d directly."""
-    global _near
+    Fast for points that follow each other (a receiver's fixes): they share the local
+    frame of their 10 km cell (and its anchors, LocalFrame.geodetic_of_enu), chosen by the
+    point alone. Points far from the Earth's surface (a receiver's no-fix X=100, Y=Z=0) go
+    to pymap3d directly."""
     if not plausible_ecef(x, y, z):
         lat, lon, h = pymap3d.ecef2geodetic(x, y, z)
         return float(lat), float(lon), float(h)
-    frame = _near
-    if frame is None or sum(v * v for v in frame.enu_of_ecef((x, y, z))) > 1e10:
-        frame = _near = LocalFrame.at_ecef((x, y, z))
+    cell = (round(x / FRAME_GRID_M), round(y / FRAME_GRID_M), round(z / FRAME_GRID_M))
+    frame = _frames.get(cell)
+    if frame is None:
+        if len(_frames) > 64:
+            _frames.clear()
+        frame = _frames[cell] = LocalFrame.at_ecef(tuple(c * FRAME_GRID_M for c in cell))
     return frame.geodetic_of_ecef((x, y, z))

@@ -9,6 +9,7 @@
     viena monitor | record | replay   watch, record and play back the car
     viena info | export | plot FILE   look into a recording
     viena foxglove                    the car live in Foxglove (ws://localhost:8765)
+    viena sim run [SCENARIO]          a closed-loop drive in virtual time (--seeds A..B: a table)
     viena route send|show|record      the route the pilot follows
     viena pilot start|stop|status     the pilot (viena-pilot) that steers along it
     viena keys ...                    the car's certificates
@@ -50,6 +51,7 @@ TOOLS = {
     "keys": ("viena.keys", "the car's certificates: init, issue, list, zenoh-config"),
     "router": ("viena.router", "run a zenoh router"),
     "settings": ("viena.settings", "every setting of a service: type, default, meaning"),
+    "sim": ("viena.sim_run", "closed-loop drives in virtual time: scenarios, a Monte-Carlo table"),
 }
 #: one program of a profile: `viena ACTION NAME`
 PROGRAM_ACTIONS = {

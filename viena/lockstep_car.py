@@ -144,6 +144,7 @@ class LockstepCar:
         self._sessions: dict[str, Any] = {}
         self._started = False
         self._observer: Any = None
+        self._tool_sessions: dict[str, list[Any]] = {}
 
     # -- life ------------------------------------------------------------------------------------
     def __enter__(self) -> LockstepCar:
@@ -184,14 +185,17 @@ class LockstepCar:
 
     def kill(self, name: str) -> None:
         """SIGKILL: the program's threads never run again; its session and tokens vanish
-        (the bus's view of a dead peer), its serial ports and CAN adapter are unplugged."""
+        (the bus's view of a dead peer), its serial ports and CAN adapter are unplugged.
+        `name` may also be a tool's: the sessions made by `session(name)` and the threads
+        started inside `clock.group(name)`."""
         self.clock.kill(name)
         self.services.pop(name, None)
         self._threads.pop(name, None)
-        session = self._sessions.pop(name, None)
-        if session is not None:
-            session.kill()
-        self._unplug(name)
+        for session in [self._sessions.pop(name, None), *self._tool_sessions.pop(name, [])]:
+            if session is not None:
+                session.kill()
+        if name in self.programs:
+            self._unplug(name)
 
     def restart(self, name: str, delay_s: float = RESTART_DELAY_S) -> Service:
         """Kill, wait as supervisord would, start again."""
@@ -228,8 +232,12 @@ class LockstepCar:
 
     # -- watching ----------------------------------------------------------------------------
     def session(self, name: str = "observer") -> Any:
-        """A session on the car's bus for a test or a tool (a person's laptop)."""
-        return self.bus.session(name)
+        """A session on the car's bus for a test or a tool (a person's laptop); `kill(name)`
+        kills it with the threads started inside `clock.group(name)`, as SIGKILL kills a
+        process."""
+        session = self.bus.session(name)
+        self._tool_sessions.setdefault(name, []).append(session)
+        return session
 
     def collect(self, keyexpr: str, decode: Callable[[bytes], Any] | None = None) -> list:
         """A list that fills with every sample on `keyexpr` from now on: decoded by
@@ -246,6 +254,10 @@ class LockstepCar:
 
     def run_for(self, seconds: float) -> None:
         self.clock.run_for(seconds)
+
+    def run_to(self, time_ns: int) -> None:
+        """Run until the virtual Unix time is exactly `time_ns` (e.g. a recording's log time)."""
+        self.clock.run_for_ns(time_ns - self.clock.time_ns())
 
     def run_until(self, condition: Callable[[], bool], within_s: float, step_s: float = 0.05) -> bool:
         return self.clock.run_until(condition, within_s, step_s)

@@ -18,6 +18,7 @@ import math
 import os
 import sys
 import threading
+import weakref
 
 from viena.common import clock
 from viena.services.steering.model.signing import signed_setpoint
@@ -31,17 +32,19 @@ ONE_OFF_QUERY_SPACING_S = 1 / 15            # arm, calibration, estop: questions
 
 
 _seq_lock = threading.Lock()
-_last_seq = 0
+#: clock -> the last seq given on it: the wall clock's for the process, each lockstep car
+#: its own (two drives in one process then count alike)
+_last_seq: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def next_seq() -> int:
     """A setpoint counter that grows on every call in this process and across processes run
     one after another (nanoseconds since 1970, bumped when two calls share one): a client or
     a one-off `viena-steer --sign` needs no state of its own to keep `seq` growing."""
-    global _last_seq
     with _seq_lock:
-        _last_seq = max(clock.time_ns(), _last_seq + 1)
-        return _last_seq
+        on = clock.current()
+        seq = _last_seq[on] = max(clock.time_ns(), _last_seq.get(on, 0) + 1)
+        return seq
 
 
 class ConflictingReplies(RuntimeError):

@@ -18,7 +18,7 @@ from viena.paths import compose_dir
 from viena.services.gnss.model.fix import FIX
 from viena.services.sim.model.truth import TRUTH
 
-pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=12, realtime=True)]  # the whole simulated car, as processes
+pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=12)]  # the whole simulated car, as processes
 CAR = "foxtest"
 ROOT = f"viena/{CAR}"
 UNITS = ("gnss0", "gnss1")

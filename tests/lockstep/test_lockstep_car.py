@@ -119,6 +119,22 @@ def test_the_steering_comes_up_calibrated_and_a_setpoint_turns_the_car(drive):
         assert client.disarm()["status"] == "accepted"
 
 
+def test_a_calibration_restart_is_swept_again_by_the_simulated_person():
+    """Issue 15: a restart left the steering calibrating for good; the person at the wheel
+    now sweeps it again, as asked, and the steering comes back ready."""
+    with LockstepCar(seed=3, programs=["sim", "steering"]) as car:
+        client = SteeringClient(car.session("person"), timeout_s=5.0)
+
+        def calibration() -> str | None:        # None until the steering answers
+            return client.ask("calibration", {}).get("calibration", {}).get("state")
+
+        assert car.run_until(lambda: calibration() == "done", within_s=60, step_s=0.5)
+        assert client.ask("calibration", {"restart": True})["status"] == "accepted"
+        assert calibration() == "sweeping"
+        assert car.run_until(lambda: calibration() == "done", within_s=90, step_s=0.5)
+        assert 90_000 <= client.ask("calibration", {})["calibration"]["span_qc"] <= 100_000
+
+
 def _bytes_of_a_drive(seed: int, seconds: float) -> tuple[str, int]:
     with LockstepCar(seed=seed) as car:
         everything = car.collect(car.key("**"))

@@ -10,7 +10,7 @@ from test_pilot_service import CAR, car, following, start_pilot  # noqa: F401  (
 from vienatest import Hijacker, open_session
 
 pytestmark = [pytest.mark.slow,  # a pilot and a steering, with watchdogs, and a hijacker:
-              pytest.mark.car(seconds=30, realtime=True)]    # in the first lane, not beside another car
+              pytest.mark.car(seconds=30)]    # in the car lane, not beside another car
 
 ROUNDS = 10
 HIJACK_DEG = -25.0

@@ -35,7 +35,7 @@ from viena.services.sim.model.truth import IST_ORIGIN
 from viena.services.steering.model.state import STATE as STEERING_STATE
 
 pytestmark = [pytest.mark.slow,  # processes: a pilot and a steering, with watchdogs, a route flood among
-              pytest.mark.car(seconds=45, realtime=True)]    # them: in the first lane, not beside another car
+              pytest.mark.car(seconds=45)]    # them: in the car lane, not beside another car
 
 CAR = "viena/elettra"
 FRAME = LocalFrame(*IST_ORIGIN)

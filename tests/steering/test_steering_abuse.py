@@ -16,7 +16,7 @@ from vienatest import signed, wait_for_line
 from viena.services.steering.client import ConflictingReplies, SteeringClient
 
 pytestmark = [pytest.mark.slow,  # floods against a steering and its drive twin, with watchdogs: in the
-              pytest.mark.car(seconds=60, realtime=True)]    # first lane, not beside another car
+              pytest.mark.car(seconds=60)]    # in the car lane, not beside another car
 
 
 def arm(session) -> str:

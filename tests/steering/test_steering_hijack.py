@@ -13,7 +13,7 @@ from vienatest import Hijacker, open_session
 from viena.services.steering.client import SteeringClient
 
 pytestmark = [pytest.mark.slow,  # a steering, its drive twin and a hijacker at its rate, with watchdogs:
-              pytest.mark.car(seconds=30, realtime=True)]    # in the first lane, not beside another car
+              pytest.mark.car(seconds=30)]    # in the car lane, not beside another car
 
 ROUNDS = 10
 OWNER_DEG = 2.0

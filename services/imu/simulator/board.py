@@ -17,7 +17,7 @@ recordings cannot tell, the assumptions listed in docs/sensors.md#imu-error-mode
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -198,6 +198,15 @@ class RazorBoard:
         object.__setattr__(self, "_mag_axes", tuple(zip(
             self._mag_offset_counts.tolist(), self._mag_noise_counts.tolist())))
         object.__setattr__(self, "_run", None)
+
+    def with_bias_step(self, gyro_dps=(0.0, 0.0, 0.0), accel_g=(0.0, 0.0, 0.0)) -> RazorBoard:
+        """The same board after a bias step (a knock, a temperature jump): its run (error
+        draws, filter states) goes on, with the gyro bias and the accelerometer offset moved."""
+        stepped = replace(self, gyro_bias_dps=tuple(b + d for b, d in zip(self.gyro_bias_dps, gyro_dps)),
+                          accel_offset_lsb=tuple(o + a * g for o, a, g in zip(
+                              self.accel_offset_lsb, accel_g, self.eeprom_gain_lsb_per_g)))
+        object.__setattr__(stepped, "_run", self._run)
+        return stepped
 
     def run(self, rng: np.random.Generator, t_s: float = 0.0) -> _Run:
         """This board's run, started (its draws made) from `rng` the first time."""
