@@ -29,33 +29,18 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from viena.common import clock
-from viena.common.geodesy import LocalFrame
 from viena.common.rotation import euler_from_quat
 from viena.services.pilot.model.estimate import Estimate
 from viena.services.pilot.model.path import Path
 from viena.services.pilot.model.pilot import Pilot, PilotSettings
-from viena.services.pilot.model.route import Route, checked
+from viena.services.pilot.model.route import Route
+from viena.services.pilot.model.sim_loop import loop_route, loop_route_from
 from viena.services.pilot.model.state import STATE
 from viena.services.sim.model.car import CarParams, SimCar
-from viena.services.sim.model.route import default_route
 from viena.services.sim.model.truth import IST_ORIGIN
 from viena.services.steering.model.requests import parse_setpoint
 from viena.services.steering.model.safety import Envelope
 from viena.services.steering.model.signing import signed_setpoint
-
-
-def loop_route(every: int = 1) -> Route:
-    """The sim's default loop (services/sim/model/route.py) as lat/lon checkpoints, one per
-    `every` metre-spaced points, closed by its first point again."""
-    pts = default_route().points[::every]
-    return _route_of(np.vstack([pts, pts[:1]]))
-
-
-def _route_of(points_enu_m) -> Route:
-    """A route through the sim's ENU points (at its origin), as lat/lon checkpoints."""
-    frame = LocalFrame(*IST_ORIGIN)
-    latlon = [frame.geodetic_of_enu_exact(e, n, IST_ORIGIN[2])[:2] for e, n in points_enu_m]
-    return checked(latlon, [None] * len(latlon), "points")
 
 
 def estimate_from_truth(truth, sigma_h_m: float = 0.05) -> Estimate:
@@ -165,21 +150,20 @@ class SteeringGate:
             self.limited[limit] = self.limited.get(limit, 0) + 1
 
 
-def loop_route_from(x_m: float, y_m: float, ahead_m: float = 2.0) -> Route:
-    """The loop as a route starting `ahead_m` beyond the loop point nearest (x, y) and
-    closing there: once round from where the car is."""
-    pts = default_route().points
-    k = int(np.argmin(np.hypot(pts[:, 0] - x_m, pts[:, 1] - y_m)))
-    k = (k + int(round(ahead_m))) % len(pts)
-    return _route_of(np.vstack([pts[k:], pts[:k], pts[k:k + 1]]))
+#: how far before its start LiveLoop's route ends: a closed route puts a car just behind its
+#: start on its last leg as well, and on a bend the pilot takes that nearer leg (its end),
+#: starts there and finishes at once; 10 m back, the first leg is the nearer for any car the
+#: pilot lets start (at most 1.5 m before it, PilotSettings.safety.max_start_offset_m)
+LIVE_ROUTE_SHORT_M = 10.0
 
 
 class LiveLoop:
-    """Once round the loop on the running sim profile, the pilot steering through the
-    estimator: sends the route from where the car is, starts the pilot, and measures the
-    truth against the route while the pilot follows. Needs the sim profile and viena-pilot
-    on the router `session` talks to, or a lockstep car's session (viena.lockstep_car): it
-    waits and reads the time through viena.common.clock, so it runs on either clock."""
+    """Once round the loop (less LIVE_ROUTE_SHORT_M) on the running sim profile, the pilot
+    steering through the estimator: sends the route from where the car is, starts the
+    pilot, and measures the truth against the route while the pilot follows. Needs the sim
+    profile and viena-pilot on the router `session` talks to, or a lockstep car's session
+    (viena.lockstep_car): it waits and reads the time through viena.common.clock, so it
+    runs on either clock."""
 
     def __init__(self, session, car: str = "elettra"):
         import threading
@@ -244,6 +228,14 @@ class LiveLoop:
     def truth(self, timeout_s: float = 5.0) -> dict:
         return self._truth_schema.decode(self.truths.get(timeout=timeout_s))
 
+    def newest_truth(self, timeout_s: float = 5.0) -> dict:
+        """The newest truth, the ones queued before it dropped: where the car is now, not
+        where it was when an earlier attempt to start began."""
+        data = self.truths.get(timeout=timeout_s)
+        while not self.truths.empty():
+            data = self.truths.get_nowait()
+        return self._truth_schema.decode(data)
+
     def drive(self, min_speed_mps: float = 2.5, timeout_s: float = 180.0, during=None) -> Drive:
         """Waits for the car to move, sends the route, starts, and follows until the pilot
         stops following; `during(t_following_s)` is called as it goes (to cut GNSS, say)."""
@@ -253,11 +245,11 @@ class LiveLoop:
         while True:                   # the estimate may be off the route at first: try again
             if clock.monotonic() > end:
                 raise RuntimeError(f"the pilot did not start: {self.state()}")
-            truth = self.truth()
+            truth = self.newest_truth()
             if truth["speed_mps"] < min_speed_mps or not self._fresh():
                 continue
             route = loop_route_from(truth["enu_m"][0], truth["enu_m"][1],
-                                    ahead_m=max(2.0, 0.3 * truth["speed_mps"]))
+                                    ahead_m=max(2.0, 0.3 * truth["speed_mps"]), short_m=LIVE_ROUTE_SHORT_M)
             answer = self.ask("route", json.dumps(route.to_geojson()).encode())
             if answer.get("status") != "accepted":
                 raise RuntimeError(f"route refused: {answer}")

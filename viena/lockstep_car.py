@@ -122,7 +122,7 @@ class LockstepCar:
 
     def __init__(self, settings: Path | dict = SIM_TOML, *, overrides: dict | None = None, seed: int | None = None,
                  programs: Iterable[str] | None = None, conf: Path = SIM_CONF, realtime: float | None = None,
-                 watchdog_s: float = 30.0):
+                 watchdog_s: float = 120.0):
         toml = load_toml(settings) if isinstance(settings, Path) else settings
         toml = lockstep_settings(toml)
         if seed is not None:

@@ -270,9 +270,9 @@ class Person:
 
 
 def laps_from(x_m: float, y_m: float, ahead_m: float, metres: float) -> Any:
-    """The sim's loop from where the car is (benchmarks/pilot.py `loop_route_from`), as many
+    """The sim's loop from where the car is (services/pilot/model/sim_loop.py), as many
     times round as `metres` take, and one more, within the pilot's MAX_POINTS."""
-    from benchmarks.pilot import loop_route_from
+    from viena.services.pilot.model.sim_loop import loop_route_from
 
     lap = loop_route_from(x_m, y_m, ahead_m)
     n = max(1, min(math.ceil(max(metres, 0.0) / lap.length_m) + 1, (MAX_POINTS - 1) // (len(lap) - 1)))
@@ -693,23 +693,12 @@ def run(args: argparse.Namespace) -> int:
                 raise ScenarioError(f"--route: {exc}") from None
         if args.duration is not None and args.duration <= 0:
             raise ScenarioError(f"--duration: must be more than 0, got {args.duration:g}")
-        _needs_the_checkout()
     except ScenarioError as exc:
         print(f"viena sim run: {exc}", file=sys.stderr)
         return 2
     if args.seeds:
         return _many(args, scenario, err)
     return _one(args, scenario, err)
-
-
-def _needs_the_checkout() -> None:
-    try:
-        import benchmarks.pilot  # noqa: F401 - the loop from where the car is
-    except ModuleNotFoundError as exc:
-        if exc.name not in ("benchmarks", "benchmarks.pilot"):
-            raise
-        raise ScenarioError("the sim's loop comes from benchmarks/pilot.py, in the source checkout: install "
-                            "viena from it with `pip install -e .`") from None
 
 
 def _one(args: argparse.Namespace, scenario: Scenario, err: Any) -> int:

@@ -7,7 +7,6 @@ import msgpack
 import numpy as np
 import pytest
 
-from benchmarks.pilot import loop_route
 from viena.services.pilot.model.path import Path
 from viena.services.pilot.model.route import (
     MAX_ROUTE_BYTES,
@@ -18,6 +17,7 @@ from viena.services.pilot.model.route import (
     distance_to_route_m,
     parse_route,
 )
+from viena.services.pilot.model.sim_loop import loop_route
 from viena.services.sim.model.truth import IST_ORIGIN
 
 LAT, LON = 38.7369, -9.1395

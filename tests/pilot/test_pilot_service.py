@@ -25,10 +25,10 @@ from vienatest import (
     wait_until,
 )
 
-from benchmarks.pilot import loop_route
 from viena.common.geodesy import LocalFrame
 from viena.common.payload import is_json_text
 from viena.services.pilot.model.route import checked
+from viena.services.pilot.model.sim_loop import loop_route
 from viena.services.pilot.model.state import PATH
 from viena.services.pilot.model.state import STATE as PILOT_STATE
 from viena.services.sim.model.truth import IST_ORIGIN
