@@ -22,13 +22,12 @@ program 'gnss3' (have: sim, gnss0, ...)`.
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from viena.common.config import expand_env, load_toml, merge_settings
+from viena.common.config import load_toml, merge_settings
 from viena.common.errors import ConfigError
 from viena.lockstep_car import PROFILES, SIM_TOML, Program, lockstep_settings, merge, profile_programs
 
@@ -109,17 +108,10 @@ def shipped() -> list[str]:
 def load(path: str | Path) -> Scenario:
     """Read and check a scenario file; ScenarioError (one line) if anything is wrong."""
     path = Path(path)
+    if not path.exists():
+        raise ScenarioError(f"{path}: no such file (shipped scenarios: {', '.join(shipped())})")
     try:
-        with path.open("rb") as f:
-            raw = tomllib.load(f)
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: no such file (shipped scenarios: {', '.join(shipped())})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: {exc}") from None
-    except OSError as exc:
-        raise ScenarioError(f"{path}: {exc.strerror}") from None
-    try:
-        raw = expand_env(raw, str(path))
+        raw = load_toml(path)
     except ConfigError as exc:
         raise ScenarioError(str(exc)) from None
     return parse(raw, path)

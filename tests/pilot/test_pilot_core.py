@@ -228,3 +228,20 @@ def test_an_unreadable_envelope_is_refused():
         pilot.on_armed({"lateral_accel_mps2": [float("nan")], "slew_deg_s": 30.0}, T0, 0.0)
     with pytest.raises(ValueError):
         pilot.on_armed({"lateral_speeds_mps": [8.0], "lateral_accel_mps2": [7.0, 3.0], "slew_deg_s": 30.0}, T0)
+
+
+def test_a_loop_starts_at_its_start_for_a_car_just_behind_it_on_a_bend():
+    """A route that ends where it starts: a car just behind the start is beside the last
+    leg too, and nearer it here; the drive starts at the start, not at the end (which
+    finished it at once)."""
+    # north from the origin, round, and back into it from the south-south-west
+    corners = [(0.0, 0.0), (0.0, 20.0), (20.0, 20.0), (20.0, -10.0), (-5.0, -10.0), (0.0, 0.0)]
+    pts = [FRAME.geodetic_of_enu_exact(x, y, IST_ORIGIN[2])[:2] for x, y in corners]
+    pilot = Pilot()
+    pilot.on_estimate(est(x=-0.9, y=-1.2, yaw_deg=0.0))     # 0.9 m off the first leg, 0.27 m off the last
+    pilot.set_route(checked(pts, [None] * len(pts), "points"))
+    assert pilot.start(T0) is None
+    s = state_of(pilot)
+    assert s["mode"] == "following" and s["progress_m"] == pytest.approx(-1.2, abs=1e-2)
+    pilot.tick(T0 + 10 * MS)
+    assert pilot.mode == "following"

@@ -189,7 +189,18 @@ class Pilot:
             return why
         self.where = None                       # find the car afresh, from the route's start
         self._locate(now_ns)
-        return start_problem(self.where, self._path.length_m, self.estimate.yaw_rad, self.settings.safety)
+        safety, length = self.settings.safety, self._path.length_m
+        why = start_problem(self.where, length, self.estimate.yaw_rad, safety)
+        if self.where.s_m > length / 2:
+            # A route that ends where it starts (a loop) has a car just behind its start
+            # beside its last leg too, on a bend nearer: a drive starts at the start, where
+            # the car may start.
+            est = self.estimate
+            at_start = self._path.project(est.x_m, est.y_m, near_s_m=0.0)
+            if (math.hypot(est.x_m - at_start.x_m, est.y_m - at_start.y_m) <= safety.max_start_offset_m
+                    and start_problem(at_start, length, est.yaw_rad, safety) is None):
+                self.where, why = at_start, None
+        return why
 
     def _locate(self, now_ns: int) -> None:
         """Where the car is on the path, from the newest usable estimate (kept as it was
