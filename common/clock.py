@@ -64,11 +64,14 @@ class RealClock:
 REAL = RealClock()
 #: thread ident -> the clock that thread lives on; absent means the wall clock
 _CLOCK_OF_THREAD: dict[int, Any] = {}
+# bound once: every call below runs on each read of the time (thousands a simulated second)
+_clock_of = _CLOCK_OF_THREAD.get
+_get_ident = threading.get_ident
 
 
 def current() -> Any:
     """The clock of the calling thread."""
-    return _CLOCK_OF_THREAD.get(threading.get_ident(), REAL)
+    return _clock_of(_get_ident(), REAL)
 
 
 def adopt(clock: Any, ident: int | None = None) -> None:
@@ -89,24 +92,24 @@ def is_virtual() -> bool:
 
 # -- what services call ------------------------------------------------------------------------
 def monotonic_ns() -> int:
-    return current().monotonic_ns()
+    return _clock_of(_get_ident(), REAL).monotonic_ns()
 
 
 def monotonic() -> float:
-    return current().monotonic_ns() / 1e9
+    return _clock_of(_get_ident(), REAL).monotonic_ns() / 1e9
 
 
 def time_ns() -> int:
     """Nanoseconds since the Unix epoch (the virtual clock starts at a fixed date)."""
-    return current().time_ns()
+    return _clock_of(_get_ident(), REAL).time_ns()
 
 
 def time() -> float:
-    return current().time_ns() / 1e9
+    return _clock_of(_get_ident(), REAL).time_ns() / 1e9
 
 
 def sleep(seconds: float) -> None:
-    current().sleep(seconds)
+    _clock_of(_get_ident(), REAL).sleep(seconds)
 
 
 def token_urlsafe(nbytes: int = 16) -> str:

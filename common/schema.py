@@ -113,6 +113,7 @@ class F:
         return v
 
     @staticmethod
+    @_fast("type(v) is dict and all([type(k) is str for k in v])")
     def map(v):
         if isinstance(v, dict) and all(type(k) is str for k in v):
             return v
@@ -141,7 +142,10 @@ class F:
             if isinstance(v, (list, tuple)):
                 return [item(x) for x in v]
             raise Invalid("expected a list", v)
-        return _made("list", item=item)(check)
+        check = _made("list", item=item)(check)
+        if hasattr(item, "fast"):           # a list whose items all pass as they are passes as it is
+            return _fast(f"type(v) is list and all([({item.fast}) for v in v])")(check)
+        return check
 
     @staticmethod
     def enum(*names: builtins.str) -> Check:
@@ -151,7 +155,10 @@ class F:
             if v in allowed:
                 return v
             raise Invalid(f"expected one of {sorted(allowed)}", v)
-        return _made("enum", allowed=allowed)(check)
+        check = _made("enum", allowed=allowed)(check)
+        if all(type(name) is builtins.str for name in names):    # a set of literals: one constant
+            return _fast(f"v in {{{', '.join(repr(name) for name in sorted(allowed))}}}")(check)
+        return check
 
     @staticmethod
     def optional(inner: Check) -> Check:

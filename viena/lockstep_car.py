@@ -122,7 +122,7 @@ class LockstepCar:
 
     def __init__(self, settings: Path | dict = SIM_TOML, *, overrides: dict | None = None, seed: int | None = None,
                  programs: Iterable[str] | None = None, conf: Path = SIM_CONF, realtime: float | None = None,
-                 watchdog_s: float = 120.0):
+                 watchdog_s: float = 120.0, cpu: int | str | None = None):
         toml = load_toml(settings) if isinstance(settings, Path) else settings
         toml = lockstep_settings(toml)
         if seed is not None:
@@ -137,7 +137,9 @@ class LockstepCar:
             raise ValueError(f"no program {', '.join(unknown)} in {conf.name} (have: {', '.join(known)})")
         self.programs = {name: known[name] for name in wanted}
         register_lockstep_can()
-        self.clock = VirtualClock(realtime=realtime, watchdog_s=watchdog_s, seed=seed or 0)
+        # cpu: one CPU for every thread of the car ("auto": one no other simulation holds),
+        # which halves the cost of a thread switch (common/lockstep/scheduler.py)
+        self.clock = VirtualClock(realtime=realtime, watchdog_s=watchdog_s, seed=seed or 0, cpu=cpu)
         self.bus = MemoryBus()
         self.services: dict[str, Service] = {}
         self._threads: dict[str, Any] = {}

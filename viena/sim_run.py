@@ -411,7 +411,7 @@ def drive(scenario: Scenario, seed: int = 1, duration_s: float | None = None, re
     same for the same scenario, seed and duration). `progress(done_s, total_s)` is called
     every virtual second."""
     duration = scenario.duration_s if duration_s is None else duration_s
-    with LockstepCar(SIM_TOML, overrides=scenario.overrides, seed=seed, realtime=realtime) as car:
+    with LockstepCar(SIM_TOML, overrides=scenario.overrides, seed=seed, realtime=realtime, cpu="auto") as car:
         t0_ns = car.clock.monotonic_ns()
         watch = Watch(car)
         person = Person(car, watch, scenario.route, duration)

@@ -53,7 +53,7 @@ import traceback
 import weakref
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import zenoh
 
@@ -133,8 +133,10 @@ class EntityId:
     eid: int
 
 
-@dataclass(frozen=True)
-class Sample:
+class Sample(NamedTuple):
+    """zenoh.Sample's read-only attributes. A NamedTuple: one is made per put, and a frozen
+    dataclass takes three times as long to build (1.1 us against 0.35)."""
+
     key_expr: zenoh.KeyExpr
     payload: zenoh.ZBytes
     encoding: zenoh.Encoding

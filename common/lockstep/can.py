@@ -23,7 +23,6 @@ the clock of the thread that opened the first one.
 """
 from __future__ import annotations
 
-import copy
 import logging
 import queue
 import threading
@@ -98,12 +97,11 @@ class LockstepBus(can.BusABC):
                 continue
             if not bus._dispatcher.is_alive():      # its program was killed: a node without power
                 continue
-            frame = copy.copy(msg)
-            frame.data = bytearray(msg.data)         # its own bytes, as the sender's may change
-            frame.timestamp = timestamp
-            frame.channel = self.channel_id
-            frame.is_rx = bus is not self
-            bus._inbox.put(frame)
+            bus._inbox.put(can.Message(          # a copy with its own bytes, as the sender's may change
+                timestamp=timestamp, arbitration_id=msg.arbitration_id, is_extended_id=msg.is_extended_id,
+                is_remote_frame=msg.is_remote_frame, is_error_frame=msg.is_error_frame, channel=self.channel_id,
+                dlc=msg.dlc, data=bytearray(msg.data), is_fd=msg.is_fd, is_rx=bus is not self,
+                bitrate_switch=msg.bitrate_switch, error_state_indicator=msg.error_state_indicator))
 
     def _dispatch(self) -> None:
         while True:

@@ -1,6 +1,7 @@
 """The virtual clock: real threads, one at a time, time jumping from event to event."""
 from __future__ import annotations
 
+import os
 import queue
 import threading
 import time
@@ -176,6 +177,31 @@ def test_callbacks_run_at_their_time_without_a_thread(vc):
     cancelled.cancel()
     vc.run_for(1)
     assert at == [300_000_000]
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="Linux's scheduling calls")
+def test_its_threads_run_as_a_batch_on_the_cpu_given_and_the_driver_gets_its_own_back():
+    cpu = max(os.sched_getaffinity(0))
+    before = (os.sched_getscheduler(0), os.sched_getaffinity(0))
+    seen = []
+    with VirtualClock(cpu=cpu) as vc:
+        clock.Thread(lambda: seen.append((os.sched_getscheduler(0), os.sched_getaffinity(0)))).start()
+        vc.run_for(1)
+    assert seen == [(os.SCHED_BATCH, {cpu})]
+    assert (os.sched_getscheduler(0), os.sched_getaffinity(0)) == before
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="Linux's scheduling calls")
+def test_simulations_that_run_at_once_take_cpus_of_their_own_and_give_them_back():
+    import fcntl
+    import tempfile
+
+    with VirtualClock(cpu="auto") as one, VirtualClock(cpu="auto") as other:
+        claimed = [vc.cpu for vc in (one, other) if vc.cpu is not None]    # None: every CPU was taken
+        assert len(set(claimed)) == len(claimed)
+    for cpu in claimed:
+        with open(os.path.join(tempfile.gettempdir(), f"viena-lockstep-cpu{cpu}.lock"), "a") as claim:
+            fcntl.flock(claim, fcntl.LOCK_EX | fcntl.LOCK_NB)           # free again: no BlockingIOError
 
 
 def test_realtime_pacing_follows_the_wall_clock():
