@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import builtins
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from typing import Any
 
 import msgpack
@@ -152,12 +152,12 @@ class F:
         allowed = frozenset(names)
 
         def check(v):
-            if v in allowed:
+            if isinstance(v, Hashable) and v in allowed:
                 return v
             raise Invalid(f"expected one of {sorted(allowed)}", v)
         check = _made("enum", allowed=allowed)(check)
         if all(type(name) is builtins.str for name in names):    # a set of literals: one constant
-            return _fast(f"v in {{{', '.join(repr(name) for name in sorted(allowed))}}}")(check)
+            return _fast(f"type(v) is str and v in {{{', '.join(repr(name) for name in sorted(allowed))}}}")(check)
         return check
 
     @staticmethod

@@ -47,6 +47,8 @@ def test_truth_round_trip():
     ({"v": [1.0, 2.0]}, "v: expected a list of 3"),
     ({"v": [1.0, float("-inf"), 2.0]}, "v: expected a finite number"),
     ({"kind": "C"}, "kind: expected one of"),
+    ({"kind": ["A"]}, "kind: expected one of"),              # unhashable: a reason, not a TypeError
+    ({"kind": {"A": 1}}, "kind: expected one of"),
     ({"raw": {"counts": [1.0]}}, "raw.counts: expected a list of 2"),
     ({"raw": {}}, "raw: missing field 'counts'"),
     ({"surprise": 1}, "unknown field 'surprise'"),
