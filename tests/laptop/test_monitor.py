@@ -136,8 +136,11 @@ def test_live_feed_sees_the_sim_and_its_loss(sim, session):
     try:
         assert wait_until(lambda: sim_status()[0] == "alive" and sim_status()[1].truth is not None, 10)
         assert wait_until(lambda: (sim_status()[1].truth.rate_hz or 0) > 50, 5)
+        # the health comes once a second, the first a second after the start: wait for it
+        # rather than assume the truth's rate took longer than that
+        assert wait_until(lambda: sim_status()[1].services[0].health is not None, 5)
         _, view = sim_status()
-        assert not view.truth.stale and view.services[0].health is not None
+        assert not view.truth.stale
         sim.send_signal(signal.SIGTERM)
         sim.wait(timeout=10)
         assert wait_until(lambda: sim_status()[0] == "lost", 10)
