@@ -109,6 +109,7 @@ def flood_with_an_owner(flood, owner, count) -> tuple[int, int, float]:
 
 
 @pytest.mark.slow
+@pytest.mark.realtime                   # counts what passes a rate limit in real time
 def test_a_setpoint_flood_from_one_client_is_cut_to_the_limit_and_another_client_still_passes(router, session):
     count = Heard()
     sub = session.declare_subscriber(KEY, lambda sample: count.add(sample.payload.to_bytes()))
@@ -126,6 +127,7 @@ def test_a_setpoint_flood_from_one_client_is_cut_to_the_limit_and_another_client
 
 
 @pytest.mark.slow
+@pytest.mark.realtime                   # counts what passes a rate limit in real time
 def test_a_query_flood_from_one_client_is_cut_to_the_limit_and_another_client_still_passes(router, session):
     """The same as puts, for setpoint queries sent without waiting for their answers (what
     took the steering's p99 from 10 to 254 ms in issue 24): the flooder gets its limit's
