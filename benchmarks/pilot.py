@@ -152,8 +152,9 @@ class SteeringGate:
 
 #: how far before its start LiveLoop's route ends: a closed route puts a car just behind its
 #: start on its last leg as well, and on a bend the pilot takes that nearer leg (its end),
-#: starts there and finishes at once; 10 m back, the first leg is the nearer for any car the
-#: pilot lets start (at most 1.5 m before it, PilotSettings.safety.max_start_offset_m)
+#: starts there and finishes at once; the pilot starts at the start instead only for a car
+#: it may start there (at most 1.5 m before it, PilotSettings.safety.max_start_offset_m),
+#: and LiveLoop's route begins up to 0.3 s of driving ahead of the car
 LIVE_ROUTE_SHORT_M = 10.0
 
 
@@ -214,16 +215,13 @@ class LiveLoop:
             return dict(self.pilot_state)
 
     def ask(self, name: str, payload: bytes) -> dict:
-        import json
-
-        from viena.common.payload import is_json_text
-        from viena.common.schema import unpack
+        from viena.common.payload import parse_payload
+        from viena.services.pilot.model.route import MAX_ROUTE_BYTES
         key = self.keys.key("pilot", name)
         replies = [r.ok for r in self.session.get(key, payload=payload, timeout=5.0) if r.ok is not None]
         if not replies:
             raise RuntimeError(f"no answer on {key}")
-        data = replies[0].payload.to_bytes()
-        return json.loads(data) if is_json_text(data) else unpack(data)
+        return parse_payload(replies[0].payload.to_bytes(), max_bytes=2 * MAX_ROUTE_BYTES)  # echoes the route
 
     def truth(self, timeout_s: float = 5.0) -> dict:
         return self._truth_schema.decode(self.truths.get(timeout=timeout_s))

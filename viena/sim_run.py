@@ -42,7 +42,7 @@ from viena import scenario as scenarios
 from viena.common import clock
 from viena.common.health import HEALTH
 from viena.common.lockstep.scheduler import START_NS
-from viena.common.payload import is_json_text
+from viena.common.payload import parse_payload
 from viena.common.schema import unpack
 from viena.lockstep_car import SIM_TOML, LockstepCar
 from viena.record import Recorder
@@ -51,7 +51,7 @@ from viena.scenario import Event, Scenario, ScenarioError
 from viena.services.estimator.state import CHI2_2D_95
 from viena.services.estimator.state import STATE as ESTIMATE
 from viena.services.pilot.model.path import Path as RoutePath
-from viena.services.pilot.model.route import MAX_POINTS, checked, parse_route
+from viena.services.pilot.model.route import MAX_POINTS, MAX_ROUTE_BYTES, checked, parse_route
 from viena.services.pilot.model.state import STATE as PILOT
 from viena.services.sim.model.truth import TRUTH
 from viena.services.steering.model.state import STATE as STEERING
@@ -264,8 +264,7 @@ class Person:
         """The pilot's answer on pilot/NAME, or {"status": "no answer"}."""
         for reply in self.session.get(self.car.key("pilot", name), payload=payload, timeout=5.0):
             if reply.ok is not None:
-                data = reply.ok.payload.to_bytes()
-                return json.loads(data) if is_json_text(data) else unpack(data)
+                return parse_payload(reply.ok.payload.to_bytes(), max_bytes=2 * MAX_ROUTE_BYTES)  # echoes the route
         return {"status": "no answer"}
 
 
