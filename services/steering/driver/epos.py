@@ -26,6 +26,7 @@ when to reset a fault: `arming.py`) belongs to the caller.
 from __future__ import annotations
 
 import logging
+import struct
 import threading
 import time
 from collections.abc import Callable
@@ -52,6 +53,12 @@ POSITION_MODE = -1
 LIMIT_DISABLED = (-(2 ** 31), 2 ** 31 - 1)          # 0x607D values that switch the check off
 NMT_OPERATIONAL = 0x05
 NMT_BOOTUP = 0x00
+HEARTBEAT = bytes([NMT_OPERATIONAL])
+#: the process data as `_map_process_data` lays it out (CiA 301: little endian), packed and
+#: read here: canopen's `Variable.raw` formats a debug message on every read
+RPDO1 = struct.Struct("<Hi")      # controlword 0x6040 (u16), position setting 0x2062 (i32)
+TPDO1 = struct.Struct("<Hi")      # statusword 0x6041 (u16), position actual 0x6064 (i32)
+TPDO2 = struct.Struct("<hib")     # following error 0x20F4 (i16), demand 0x6062 (i32), mode 0x6061 (i8)
 
 
 class DriveError(Exception):
@@ -267,6 +274,7 @@ class EposDrive:
                 pdo.add_variable(index)
             pdo.enabled = True
         self._rpdo = node.rpdo[1]
+        self._tpdo1 = node.tpdo[1]
         node.tpdo[1].add_callback(self._on_tpdo)
         node.tpdo[2].add_callback(self._on_tpdo)
 
@@ -280,7 +288,7 @@ class EposDrive:
             raise DriveError(f"PDO mapping refused: {exc}") from None
         except canopen.SdoCommunicationError as exc:
             raise DriveError(f"PDO mapping: no answer ({exc})") from None
-        node.setup_pdos(upload=False)          # BaseNode402 follows the statusword by TPDO
+        node.pdo.subscribe()                   # hear the TPDOs (Feedback keeps what they say)
         # Our RPDO's contents are ours alone: never let a frame from another host on the
         # bus with the same COB-ID overwrite them (canopen subscribes RPDOs on save()).
         if self._rpdo.on_message in self._net.subscribers.get(self._rpdo.cob_id, []):
@@ -295,7 +303,7 @@ class EposDrive:
             if target_qc is not None:
                 self._target_qc = int(target_qc)
             if now >= self._next_heartbeat:
-                self._net.send_message(0x700 + self.settings.host_node_id, bytes([NMT_OPERATIONAL]))
+                self._net.send_message(0x700 + self.settings.host_node_id, HEARTBEAT)
                 self._next_heartbeat = now + self.settings.host_heartbeat_period_s
                 self.tx_frames += 1
             self._send_rpdo()
@@ -317,9 +325,7 @@ class EposDrive:
             self._send_rpdo()
 
     def _send_rpdo(self) -> None:
-        self._rpdo[0x6040].raw = self._controlword
-        self._rpdo[0x2062].raw = self._target_qc
-        self._rpdo.transmit()
+        self._net.send_message(self._rpdo.cob_id, RPDO1.pack(self._controlword, self._target_qc))
         self.tx_frames += 1
 
     @property
@@ -362,12 +368,14 @@ class EposDrive:
         now = self._clock()
         with self._fb_lock:
             fb = self._feedback
-            if pdo.cob_id == self._node.tpdo[1].cob_id:
-                fb = Feedback(pdo[0x6041].raw, pdo[0x6064].raw, fb.following_error_qc,
-                              fb.demand_qc, fb.op_mode, now, fb.count + 1)
+            if pdo is self._tpdo1:
+                statusword, position_qc = TPDO1.unpack_from(pdo.data)
+                fb = Feedback(statusword, position_qc, fb.following_error_qc, fb.demand_qc, fb.op_mode,
+                              now, fb.count + 1)
             else:
-                fb = Feedback(fb.statusword, fb.position_qc, pdo[0x20F4].raw, pdo[0x6062].raw,
-                              pdo[0x6061].raw, now, fb.count + 1)
+                following_error_qc, demand_qc, op_mode = TPDO2.unpack_from(pdo.data)
+                fb = Feedback(fb.statusword, fb.position_qc, following_error_qc, demand_qc, op_mode,
+                              now, fb.count + 1)
             self._feedback = fb
             self._fb_lock.notify_all()
 

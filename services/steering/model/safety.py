@@ -99,6 +99,8 @@ class Envelope:
         self.last: Decision | None = None
         self.refused: dict[str, int] = {}  # rejected setpoints by cause (REFUSAL_CAUSES), for health
         self._log = DecisionLog()
+        self._limits_at: tuple | None = None   # (speed, engaging, lateral, slew, their Limits): the last made
+        self._owner: tuple[str | None, str | None] = (None, None)   # (lease, its hash)
 
     # -- configuration -----------------------------------------------------------------------
     def set_range(self, lo_deg: float, hi_deg: float) -> None:
@@ -124,14 +126,22 @@ class Envelope:
 
     @property
     def owner(self) -> str | None:
-        return lease_hash(self.lease)
+        if self._owner[0] != self.lease:        # hashed once per lease, not per state
+            self._owner = (self.lease, lease_hash(self.lease))
+        return self._owner[1]
 
     def limits_now(self, now_s: float) -> tuple[Speed, Limits]:
         """The speed trusted now, and the limits at it (the engaging ones for `engage_s`
         after an arm)."""
         speed = self.speeds.speed(now_s)
         engaging = self.armed and self.armed_t is not None and now_s - self.armed_t < self.lateral.engage_s
-        return speed, limits(speed.mps, self.lateral, self.settings.slew_deg_s, engaging)
+        made = self._limits_at                 # the same speed as last time: the same limits
+        if made is not None and made[0] == speed.mps and made[1] == engaging and made[2] is self.lateral \
+                and made[3] == self.settings.slew_deg_s:
+            return speed, made[4]
+        lim = limits(speed.mps, self.lateral, self.settings.slew_deg_s, engaging)
+        self._limits_at = (speed.mps, engaging, self.lateral, self.settings.slew_deg_s, lim)
+        return speed, lim
 
     # -- arming --------------------------------------------------------------------------
     def arm_refusal(self, measured_deg: float | None, lease: str | None = None) -> str | None:

@@ -28,6 +28,8 @@ from viena.common.settings import setting
 ESTIMATOR, GNSS, CONSERVATIVE = "estimator", "gnss", "conservative"
 #: causes a refused sample is counted under (a fixed set)
 REFUSALS = ("non_finite", "negative", "absurd", "future", "stale", "not_valid")
+#: how far from the moment a reading goes stale a remembered speed is still used
+_EDGE_S = 1e-6
 
 
 @dataclass(frozen=True)
@@ -69,6 +71,10 @@ class SpeedSources:
         self._estimator: _Reading | None = None
         self._gnss: dict[str, _Reading] = {}
         self.refused: dict[str, int] = {}
+        #: the last speed made from the sources, and the times (lo, hi] it holds for: the
+        #: same readings give the same speed until one of them goes stale (`speed` is asked
+        #: on every control tick, state and setpoint; the readings change less often)
+        self._made: tuple[float, float, Speed] | None = None
 
     # -- samples ---------------------------------------------------------------------------
     def estimator(self, t_ns: int, speed_mps: float, sigma_mps: float, valid: bool,
@@ -77,6 +83,7 @@ class SpeedSources:
         why = self._judge(t_ns, speed_mps, sigma_mps, valid, wall_ns)
         if not why:
             self._estimator = _Reading(speed_mps, sigma_mps, t_ns, now_s)
+            self._made = None
         return why
 
     def gnss(self, unit: str, t_ns: int, speed_mps: float, sigma_mps: float, valid: bool,
@@ -85,6 +92,7 @@ class SpeedSources:
         why = self._judge(t_ns, speed_mps, sigma_mps, valid, wall_ns)
         if not why:
             self._gnss[unit] = _Reading(speed_mps, sigma_mps, t_ns, now_s)
+            self._made = None
         return why
 
     def _judge(self, t_ns, speed, sigma, valid, wall_ns) -> str:
@@ -108,12 +116,31 @@ class SpeedSources:
 
     # -- the speed used --------------------------------------------------------------------
     def speed(self, now_s: float) -> Speed:
+        made = self._made
+        if made is not None and made[0] < now_s <= made[1]:
+            return made[2]
         s = self.settings
         est = self._estimator
         if est is None or now_s - est.received_s > s.speed_timeout_s:
             why = "no speed from the estimator yet" if est is None else \
                 f"no fresh speed from the estimator for {now_s - est.received_s:.2f} s"
             return Speed(s.speed_conservative_mps, CONSERVATIVE, why)
+        # which readings are fresh changes only when one goes stale: the speed holds until
+        # then (kept clear of those moments by _EDGE_S, where float rounding could decide)
+        lo, hi = -math.inf, est.received_s + s.speed_timeout_s
+        for fix in self._gnss.values():
+            stale_from = fix.received_s + s.speed_timeout_s
+            if now_s - fix.received_s > s.speed_timeout_s:
+                lo = max(lo, stale_from)
+            else:
+                hi = min(hi, stale_from)
+        speed = self._from_sources(now_s, est)
+        self._made = (lo + _EDGE_S, hi - _EDGE_S, speed)
+        return speed
+
+    def _from_sources(self, now_s: float, est: _Reading) -> Speed:
+        """The speed from a fresh estimator reading and the fresh receivers that agree with it."""
+        s = self.settings
         used = est.speed_mps + s.speed_margin_sigmas * est.sigma_mps
         agreeing = []
         for unit, fix in sorted(self._gnss.items()):

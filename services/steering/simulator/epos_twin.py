@@ -24,12 +24,15 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import canopen
+from canopen.objectdictionary import ODVariable
+from canopen.objectdictionary.datatypes import INTEGER_TYPES
 from canopen.sdo import SdoAbortedError
 
 from viena.common import clock as clocks
@@ -76,7 +79,9 @@ class TwinSettings:
     hands_speed_qc_s: float = 40_000.0
     quickstop_decel_qc_s2: float = 400_000.0
     plant: PlantParams = field(default_factory=lambda: TRAJ01)
-    step_period_s: float = 0.002
+    #: how often the twin steps by itself; a SYNC, an RPDO and a controlword step it too, at
+    #: their moment, so this is the person's hands, the sweep and the supervision's grain
+    step_period_s: float = 0.01
 
 
 class EposTwin:
@@ -100,6 +105,20 @@ class EposTwin:
         #: the person at the wheel: the wheel angle (rad) they steer to while the drive
         #: does not hold the wheel, or None (hands off). The sim's route follower.
         self.hands: Callable[[], float | None] | None = None
+        #: the objects the firmware computes when read (index -> value at a subindex)
+        self._readers: dict[int, Callable[[int], int | None]] = {
+            0x6041: lambda sub: self.statusword,
+            0x6064: lambda sub: self.position_qc,
+            0x6062: lambda sub: self._demand_qc(),
+            0x20F4: lambda sub: max(-32768, min(32767, round(self.plant.demand - self.plant.x))),
+            0x6061: lambda sub: self.op_mode,
+            0x2020: lambda sub: self.position_qc & 0xFFFF,
+            0x1001: lambda sub: self._error_register(),
+            0x1003: self._history_entry,
+        }
+        self._on_sync_tpdos: list = []          # the PDO maps as the last NMT start read them
+        self._on_change_tpdos: list = []
+        self._layouts: dict[int, _Layout | None] = {}
 
     # -- life -----------------------------------------------------------------------------
     def start(self) -> EposTwin:
@@ -126,6 +145,7 @@ class EposTwin:
             self.node = node
             for pdo in node.rpdo.map.values():
                 pdo.add_callback(self._on_rpdo)
+            self._compile_pdos()
             self._subscribe_sync(0x80)
             node.nmt.send_command(NMT_RESET_NODE)        # boot-up message
             node.nmt.send_command(NMT_PREOP)
@@ -402,6 +422,9 @@ class EposTwin:
     def _on_controlword(self, cw: int) -> None:
         previous, self.controlword = self.controlword, cw
         now = self._clock()
+        # (an RPDO has just stepped the twin: stepping again at the same instant changes
+        # nothing but asks the person's hands once more, and the sim's route follower's
+        # path depends on how often it is asked: kept, for the same sim)
         self.step(now)
         st = self.state
         if st == ds402.FAULT:
@@ -448,29 +471,23 @@ class EposTwin:
 
     # -- object dictionary ----------------------------------------------------------------
     def _on_read(self, index: int, subindex: int, od):
-        if index == 0x6041:
-            return self.statusword
-        if index == 0x6064:
-            return self.position_qc
-        if index == 0x6062:
-            raw = round(self.plant.demand) - self.encoder_offset
-            return -raw if self.sensor_polarity & 1 else raw
-        if index == 0x20F4:
-            return max(-32768, min(32767, round(self.plant.demand - self.plant.x)))
-        if index == 0x6061:
-            return self.op_mode
-        if index == 0x2020:
-            return self.position_qc & 0xFFFF
-        if index == 0x1001:
-            return self._error_register()
-        if index == 0x1003 and subindex == 0:
+        reader = self._readers.get(index)
+        return None if reader is None else reader(subindex)
+
+    def _demand_qc(self) -> int:
+        raw = round(self.plant.demand) - self.encoder_offset
+        return -raw if self.sensor_polarity & 1 else raw
+
+    def _history_entry(self, subindex: int) -> int:
+        if subindex == 0:
             return len(self.history)
-        if index == 0x1003:
-            return self.history[subindex - 1] if subindex <= len(self.history) else 0
-        return None
+        return self.history[subindex - 1] if subindex <= len(self.history) else 0
 
     def _on_write(self, index: int, subindex: int, od, data: bytes) -> None:
-        value = od.decode_raw(data)
+        self._write(index, subindex, od.decode_raw(data))
+
+    def _write(self, index: int, subindex: int, value) -> None:
+        """An object written, by SDO or RPDO."""
         enabled = self.state not in _DISABLED
         if index == 0x6040:
             self._on_controlword(value)
@@ -543,21 +560,30 @@ class EposTwin:
                 return
             self.step()
             self._sync_count += 1
-            for pdo in self.node.tpdo.map.values():
-                if pdo.enabled and pdo.trans_type and 1 <= pdo.trans_type <= 240 \
-                        and self._sync_count % pdo.trans_type == 0:
+            for pdo in self._on_sync_tpdos:
+                if self._sync_count % pdo.trans_type == 0:
                     self._send_tpdo(pdo)
 
     def _on_rpdo(self, pdo) -> None:
         with self._lock:
             if not self.powered or self.node.nmt.state != "OPERATIONAL":
                 return
+            self.step()         # the axis up to now on the old setpoint: the new one acts from its arrival
             if len(pdo.data) * 8 < pdo.length:
                 self._fault(0x8210, self._clock())        # CAN PDO length error
                 return
-            for var in pdo:
-                if var.length:
-                    self.node.set_data(var.index, var.subindex, var.get_data())
+            layout = self._layouts.get(id(pdo))
+            if layout is None:
+                for var in pdo:
+                    if var.length:
+                        self.node.set_data(var.index, var.subindex, var.get_data())
+                return
+            # what node.set_data does for each variable, without canopen's per-variable
+            # unpacking and lookups: our write callback, then the object's bytes stored
+            store = self.node.data_store
+            for var, value, data in layout.unpack(pdo.data):
+                self._write(var.index, var.subindex, value)
+                store.setdefault(var.index, {})[var.subindex] = data
 
     def _load_pdos(self) -> None:
         """On NMT start: take the mapping the host wrote (our own OD, through our SDO server)."""
@@ -571,20 +597,92 @@ class EposTwin:
             if pdo.enabled:
                 self._unsubscribe(pdo.cob_id, pdo.on_message)
         self._tpdo_last.clear()
+        self._compile_pdos()
+
+    def _compile_pdos(self) -> None:
+        """What each SYNC and step needs of the mapping, worked out once: the mapping
+        changes only here (read at NMT start), while the PDOs go 100 times a second."""
+        node = self.node
+        tpdos = list(node.tpdo.map.items())
+        self._on_sync_tpdos = [pdo for _, pdo in tpdos if pdo.enabled and pdo.trans_type
+                               and 1 <= pdo.trans_type <= 240]
+        self._on_change_tpdos = [(n, pdo) for n, pdo in tpdos if pdo.enabled and pdo.trans_type in (254, 255)]
+        self._layouts = {id(pdo): _Layout.of(pdo, self._readers)
+                         for pdo in list(node.rpdo.map.values()) + [pdo for _, pdo in tpdos]}
+
+    def _tpdo_data(self, pdo) -> bytes | None:
+        """The mapped objects' bytes as node.get_data gives them, packed at once (None:
+        a mapping `_Layout` does not cover)."""
+        layout = self._layouts.get(id(pdo))
+        return None if layout is None else layout.pack()
 
     def _send_tpdo(self, pdo) -> bytes:
-        for var in pdo:
-            if var.length:
-                var.set_data(self.node.get_data(var.index, var.subindex))
-        pdo.transmit()
+        data = self._tpdo_data(pdo)
+        if data is not None:
+            pdo.data[:len(data)] = data
+        else:
+            mapped = [var for var in pdo if var.length]
+            if any(var.offset % 8 or var.length % 8 for var in mapped):   # bit fields: canopen packs them
+                for var in mapped:
+                    var.set_data(self.node.get_data(var.index, var.subindex))
+            else:           # whole bytes: one join, not canopen's per-variable packing
+                data = b"".join([self.node.get_data(var.index, var.subindex) for var in mapped])
+                pdo.data[:len(data)] = data
+        self.network.send_message(pdo.cob_id, pdo.data)
         return bytes(pdo.data)
 
     def _tpdos_on_change(self) -> None:
-        if self.node.nmt.state != "OPERATIONAL":
+        if not self._on_change_tpdos or self.node.nmt.state != "OPERATIONAL":
             return
-        for n, pdo in self.node.tpdo.map.items():
-            if pdo.enabled and pdo.trans_type in (254, 255):
+        for n, pdo in self._on_change_tpdos:
+            data = self._tpdo_data(pdo)
+            if data is None:
                 data = b"".join(self.node.get_data(v.index, v.subindex) for v in pdo if v.length)
-                if self._tpdo_last.get(n) != data:
-                    self._tpdo_last[n] = self._send_tpdo(pdo)
+            if self._tpdo_last.get(n) != data:
+                self._tpdo_last[n] = self._send_tpdo(pdo)
+
+
+class _Layout:
+    """A PDO of whole integers at whole bytes, each as long as its object (what the EPOS
+    maps): one struct packs or unpacks it all, instead of canopen's per-variable bit
+    slicing and object dictionary lookups. Other mappings go through canopen."""
+
+    def __init__(self, variables: list, fmt: struct.Struct, readers: list):
+        self.variables, self.struct, self.readers = variables, fmt, readers
+
+    @classmethod
+    def of(cls, pdo, readers: dict[int, Callable[[int], int | None]]) -> _Layout | None:
+        variables, fmt, bits, served = [], "<", 0, []
+        for var in pdo:
+            if not var.length:
+                continue
+            od = var.od
+            code = ODVariable.STRUCT_TYPES.get(od.data_type)
+            if type(code) is not struct.Struct or od.data_type not in INTEGER_TYPES or var.offset != bits \
+                    or var.length != len(od) or od.min is not None or od.max is not None:
+                return None
+            variables.append(var)
+            fmt += code.format.lstrip("<")
+            bits += var.length
+            reader = readers.get(var.index)
+            served.append(None if reader is None else (reader, var.subindex))
+        if not variables:
+            return None
+        return cls(variables, struct.Struct(fmt), served if None not in served else [])
+
+    def unpack(self, data: bytes) -> list[tuple[Any, int, bytes]]:
+        """(variable, value, its bytes) for each mapped variable of a received PDO."""
+        values = self.struct.unpack_from(data)
+        return [(var, value, bytes(data[var.offset // 8:(var.offset + var.length) // 8]))
+                for var, value in zip(self.variables, values)]
+
+    def pack(self) -> bytes | None:
+        """The bytes of a PDO whose objects the twin computes (its read callback), or None
+        (objects from the data store, or a value that does not fit: canopen says why)."""
+        if not self.readers:
+            return None
+        try:
+            return self.struct.pack(*[read(sub) for read, sub in self.readers])
+        except struct.error:
+            return None
 
