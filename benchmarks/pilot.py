@@ -175,11 +175,12 @@ class LiveLoop:
 
         self.session, self.keys = session, Keys(car)
         self._truth_schema, self._pilot_schema, self._estimate_reader = TRUTH, STATE, ESTIMATE.reader("t", "enu_m")
-        self.truths = clock.Queue()
+        self.truths = clock.Queue()                     # the truths, decoded (once, by _on_truth)
         self.pilot_state: dict = {}
         self.estimate_errors: list[float] = []
         self.estimate_ages_s: list[float] = []          # how old each state was on arrival
         self._truth_at: dict[int, tuple[float, float]] = {}      # by 10 ms step: the truth's (x, y)
+        self._in_order, self._last_step = True, 0                # ... added in time order so far
         self._lock = threading.Lock()
         self._subs = [
             session.declare_subscriber(self.keys.truth, self._on_truth),
@@ -187,13 +188,18 @@ class LiveLoop:
             session.declare_subscriber(self.keys.key("pilot", "state"), self._on_pilot)]
 
     def _on_truth(self, sample) -> None:
-        data = sample.payload.to_bytes()
-        self.truths.put(data)
-        truth = self._truth_schema.decode(data)
+        truth = self._truth_schema.decode(sample.payload.to_bytes())
+        self.truths.put(truth)
+        step = round(truth["t"] / 1e7)
         with self._lock:
-            self._truth_at[round(truth["t"] / 1e7)] = (truth["enu_m"][0], truth["enu_m"][1])
-            if len(self._truth_at) > 1000:
-                del self._truth_at[min(self._truth_at)]
+            at = self._truth_at
+            # the oldest step goes: the first one in the dict while the truths came in order
+            # (a min over 1000 keys at every truth was a share of the lockstep car's profile)
+            self._in_order = self._in_order and (not at or step >= self._last_step)
+            self._last_step = step
+            at[step] = (truth["enu_m"][0], truth["enu_m"][1])
+            if len(at) > 1000:
+                del at[next(iter(at)) if self._in_order else min(at)]
 
     def _on_estimate(self, sample) -> None:
         from viena.common.schema import unpack
@@ -224,15 +230,15 @@ class LiveLoop:
         return parse_payload(replies[0].payload.to_bytes(), max_bytes=2 * MAX_ROUTE_BYTES)  # echoes the route
 
     def truth(self, timeout_s: float = 5.0) -> dict:
-        return self._truth_schema.decode(self.truths.get(timeout=timeout_s))
+        return self.truths.get(timeout=timeout_s)
 
     def newest_truth(self, timeout_s: float = 5.0) -> dict:
         """The newest truth, the ones queued before it dropped: where the car is now, not
         where it was when an earlier attempt to start began."""
-        data = self.truths.get(timeout=timeout_s)
+        truth = self.truths.get(timeout=timeout_s)
         while not self.truths.empty():
-            data = self.truths.get_nowait()
-        return self._truth_schema.decode(data)
+            truth = self.truths.get_nowait()
+        return truth
 
     def drive(self, min_speed_mps: float = 2.5, timeout_s: float = 180.0, during=None) -> Drive:
         """Waits for the car to move, sends the route, starts, and follows until the pilot
@@ -263,6 +269,7 @@ class LiveLoop:
             self.estimate_ages_s.clear()
         errors, near, t0, started_ns = [], None, clock.monotonic(), clock.time_ns()
         miss = np.full(len(path.points), np.inf)
+        px, py = path.points[:, 0].copy(), path.points[:, 1].copy()
         while clock.monotonic() < end:
             truth = self.truth()
             state = self.state()
@@ -275,7 +282,7 @@ class LiveLoop:
             where = path.project(x, y, near_s_m=near)
             near = where.s_m
             errors.append(where.cross_track_m)
-            miss = np.minimum(miss, np.hypot(path.points[:, 0] - x, path.points[:, 1] - y))
+            np.minimum(miss, np.hypot(px - x, py - y), out=miss)
         state = self.state()
         with self._lock:
             estimate_errors = np.array(self.estimate_errors)

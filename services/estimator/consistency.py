@@ -58,11 +58,13 @@ class Consistency:
         self.nis = {k: None for k in KINDS}            # average d2 per dimension
         self.test_ratio = {k: None for k in KINDS}     # last d2 / gate
         self._velocity_seen = AVERAGE_UPDATES     # updates since the last velocity one
+        self._report: tuple | None = None         # the rounded figures, until they change
         self.restart()
 
     def restart(self) -> None:
         """A new estimate: what the old one's innovations said no longer holds."""
         self.q_scale = 1.0
+        self._report = None
         self._since_scale = 0
         self._refused: dict[tuple[str, str], tuple[int, int]] = {}    # refusals in a row, since
         self._refused_share = {"position": 0.0, "velocity": 0.0}
@@ -72,6 +74,7 @@ class Consistency:
         `judges`: it may move the process noise (not a velocity made from the positions)."""
         if not math.isfinite(d2):
             return
+        self._report = None
         self.test_ratio[kind] = d2 / gate
         per_dof = min(d2 / dof, 100.0)                  # one wild measurement is not an average
         avg = self.nis[kind]
@@ -125,7 +128,10 @@ class Consistency:
         return False
 
     def report(self) -> dict:
-        rnd = lambda v: None if v is None else round(v, 3)      # noqa: E731
-        return {"nis": {k: rnd(v) for k, v in self.nis.items()},
-                "test_ratio": {k: rnd(v) for k, v in self.test_ratio.items()},
-                "process_noise_scale": round(self.q_scale, 3)}
+        """The state's fields (every state has them; they change only with an update)."""
+        if self._report is None:
+            rnd = lambda v: None if v is None else round(v, 3)      # noqa: E731
+            self._report = ({k: rnd(v) for k, v in self.nis.items()},
+                            {k: rnd(v) for k, v in self.test_ratio.items()}, round(self.q_scale, 3))
+        nis, test_ratio, scale = self._report
+        return {"nis": dict(nis), "test_ratio": dict(test_ratio), "process_noise_scale": scale}

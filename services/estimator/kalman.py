@@ -82,6 +82,7 @@ class NavKalman:
         #: the IMU-driven process noise times this (consistency.py: an adaptive Q)
         self.q_scale = 1.0
         self._sigma: dict[str, tuple] = {}     # unit -> its error's stationary sigmas (E, N, U)
+        self._h_cache: dict[tuple, np.ndarray] = {}     # (kind, n, k) -> H rows (`_rows`)
         self.initialized = False
         self._size(self.core)
 
@@ -331,10 +332,21 @@ class NavKalman:
         return H @ self.P @ H.T + R_p
 
     def _h_pos(self, k) -> np.ndarray:
-        H = np.zeros((3, self.n))
-        H[:, P_] = _I3
-        if k is not None:
-            H[:, k:k + 3] = _I3
+        """The rows of a fix's position (p plus receiver k's error, when k is not None)."""
+        return self._rows("position", k)
+
+    def _rows(self, kind: str, k=None) -> np.ndarray:
+        """The constant H rows of a position or velocity, made once per state size: read-only
+        (building them for every fix cost more than the update's arithmetic)."""
+        key = (kind, self.n, k)
+        H = self._h_cache.get(key)
+        if H is None:
+            H = np.zeros((3, self.n))
+            H[:, P_ if kind == "position" else V_] = _I3
+            if k is not None:
+                H[:, k:k + 3] = _I3
+            H.flags.writeable = False
+            self._h_cache[key] = H
         return H
 
     def _stack(self, nu_p, R_p, nu_v, R_v, extra, k):
@@ -343,9 +355,7 @@ class NavKalman:
         if nu_p is not None:
             blocks.append((self._h_pos(k), nu_p, R_p))
         if nu_v is not None:
-            H = np.zeros((3, self.n))
-            H[:, V_] = _I3
-            blocks.append((H, nu_v, R_v))
+            blocks.append((self._rows("velocity"), nu_v, R_v))
         if extra is not None:
             blocks.append(extra)
         H = np.concatenate([b[0] for b in blocks]) if len(blocks) > 1 else blocks[0][0]

@@ -27,8 +27,10 @@ def mode(est) -> str:
     if not est.kf.initialized:
         return "attitude"
     timeout = est.gnss_timeout_ns
-    gnss = any(t - tf < timeout for tf in est.gnss.last_fix_t.values())
-    return "navigating" if gnss else "coasting"
+    for tf in est.gnss.last_fix_t.values():
+        if t - tf < timeout:
+            return "navigating"
+    return "coasting"
 
 
 def build_state(est, seq: int) -> tuple[dict, list]:

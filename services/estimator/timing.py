@@ -39,6 +39,8 @@ SIGNIFICANT_S = 0.03
 #: the gyro's yaw kept, s (the largest lag and fix gap, and then some), on a grid of
 _KEEP_S = 3.5
 _GRID_NS = 20_000_000
+#: the index of the lag 0
+_ZERO_LAG = int(np.argmin(np.abs(LAGS_S)))
 
 
 class OffsetHint:
@@ -50,6 +52,7 @@ class OffsetHint:
         self._waiting: deque = deque()      # (t0, t1, course turned, variance) to compare
         self._sse = np.zeros(len(LAGS_S))   # weighted squared misfit per lag
         self._t: int | None = None
+        self._late: float | None = None     # late_s as of the last _compare (read every state)
 
     def gyro(self, t: int, yaw_rate: float, dt: float) -> None:
         """One IMU sample: the yaw rate (rad/s, bias-corrected) over the dt before stamp t."""
@@ -98,14 +101,19 @@ class OffsetHint:
             self._sse *= math.exp(-(t1 - self._t) * 1e-9 / TAU_S)
         self._t = t1
         self._sse += miss * miss / var
+        self._late = None
 
     @property
     def late_s(self) -> float:
         """How late the IMU's stamps look (s), 0 until the fixes point at a lag clearly."""
+        if self._late is None:
+            self._late = self._fit()
+        return self._late
+
+    def _fit(self) -> float:
         sse = self._sse
         i = int(np.argmin(sse))
-        zero = int(np.argmin(np.abs(LAGS_S)))
-        if sse[zero] - sse[i] < SIGNIFICANT_CHI2:
+        if sse[_ZERO_LAG] - sse[i] < SIGNIFICANT_CHI2:
             return 0.0
         late = float(LAGS_S[i])
         if 0 < i < len(sse) - 1:              # the parabola through the best three
