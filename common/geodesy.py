@@ -41,6 +41,9 @@ class LocalFrame:
         self.rot_ecef_to_enu = np.array(cols, float).T
         self._rows = [float(v) for v in self.rot_ecef_to_enu.ravel()]
         self._origin_ecef = [float(v) for v in pymap3d.geodetic2ecef(lat_deg, lon_deg, height_m)]
+        # pymap3d.enu2uvw's sines and cosines of the origin, from the numpy functions it calls
+        lat, lon = np.radians(lat_deg), np.radians(lon_deg)
+        self._trig = (float(np.cos(lat)), float(np.sin(lat)), float(np.cos(lon)), float(np.sin(lon)))
         self._cov_cache: dict = {}
         self.gravity_mps2 = normal_gravity(lat_deg, height_m)
         self._anchors: dict[tuple[int, int, int], tuple] = {}
@@ -59,6 +62,19 @@ class LocalFrame:
         return (r[0] * dx + r[1] * dy + r[2] * dz,
                 r[3] * dx + r[4] * dy + r[5] * dz,
                 r[6] * dx + r[7] * dy + r[8] * dz)
+
+    def vector_of_enu(self, e: float, n: float, u: float) -> tuple[float, float, float]:
+        """A free vector (velocity) from ENU axes to ECEF axes: pymap3d.enu2uvw's arithmetic, in the
+        same order on the same constants (so the same bits), on floats: a tenth of its cost."""
+        cos_lat, sin_lat, cos_lon, sin_lon = self._trig
+        t = cos_lat * u - sin_lat * n
+        return cos_lon * t - sin_lon * e, sin_lon * t + cos_lon * e, sin_lat * u + cos_lat * n
+
+    def ecef_of_enu(self, e: float, n: float, u: float) -> tuple[float, float, float]:
+        """ECEF of an ENU point, as pymap3d.enu2ecef (the same bits, see vector_of_enu)."""
+        x0, y0, z0 = self._origin_ecef
+        x, y, z = self.vector_of_enu(e, n, u)
+        return x0 + x, y0 + y, z0 + z
 
     def geodetic_of_enu_exact(self, e: float, n: float, u: float) -> tuple[float, float, float]:
         lat, lon, h = pymap3d.enu2geodetic(e, n, u, *self.origin)

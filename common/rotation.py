@@ -11,19 +11,27 @@ import math
 import numpy as np
 
 
-def _unit_quat(q):
+def unit_quat(q) -> list[float] | np.ndarray:
     """q / |q| as Python floats, the norm being np.linalg.norm's own sqrt(q . q) (same bits)
     without its checks: the simulated car asks for this ~100 times a simulated second, and
-    arithmetic on Python floats is several times cheaper than on numpy scalars."""
+    arithmetic on Python floats is several times cheaper than on numpy scalars (IEEE division
+    is exact, so dividing the floats gives numpy's bits)."""
     a = np.asarray(q)
     if a.ndim != 1 or a.dtype != np.float64:
         return np.asarray(q, float) / np.linalg.norm(q)     # anything else, as it always was
     a = np.ascontiguousarray(a)                             # as norm's ravel
-    return (a / math.sqrt(a.dot(a))).tolist()
+    norm = math.sqrt(a.dot(a))
+    if norm == 0.0:
+        return (a / norm).tolist()                          # numpy's nans (and warning), not an exception
+    return [v / norm for v in a.tolist()]
 
 
 def quat_to_matrix(q) -> np.ndarray:
-    w, x, y, z = _unit_quat(q)
+    return unit_quat_to_matrix(*unit_quat(q))
+
+
+def unit_quat_to_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
+    """The rotation matrix of a quaternion already of unit length."""
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
@@ -45,7 +53,11 @@ def quat_from_euler(yaw: float, pitch: float, roll: float) -> np.ndarray:
 
 def euler_from_quat(q) -> tuple[float, float, float]:
     """(yaw, pitch, roll) in rad; pitch is clipped to +-90 deg at the singularity."""
-    w, x, y, z = _unit_quat(q)
+    return euler_from_unit_quat(*unit_quat(q))
+
+
+def euler_from_unit_quat(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """euler_from_quat of a quaternion already of unit length."""
     yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
     roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))

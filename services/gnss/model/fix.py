@@ -162,7 +162,7 @@ def _times(header, t_host_ns: int) -> dict:
     t = gps_to_utc_ns(header.week, header.milliseconds) if usable else t_host_ns
     return {"t": t, "gps_week": header.week, "gps_ms": header.milliseconds,
             "t_host": t_host_ns, "latency_s": (t_host_ns - t) / 1e9,
-            "time_status": TimeStatus(header.time_status).name}
+            "time_status": TimeStatus.of(header.time_status)._name_}
 
 
 def enu_sigma_to_ecef(sigma_enu, lat_deg: float, lon_deg: float) -> list[float]:
@@ -190,8 +190,9 @@ def fix_from_bestxyz(msg: LogMessage, unit: str, seq: int) -> dict:
         "seq": seq, "unit": unit, "protocol": "novatel",
         "valid": (d.pos_status == 0 and d.pos_type != 0 and not is_no_fix(d.position_m)
                   and _finite(d.position_m)),
-        "pos_status": d.pos_status.name, "pos_type": d.pos_type.name,
-        "vel_status": d.vel_status.name, "vel_type": d.vel_type.name,
+        # _name_ is the member's name as .name, without the enum property's cost (every fix)
+        "pos_status": d.pos_status._name_, "pos_type": d.pos_type._name_,
+        "vel_status": d.vel_status._name_, "vel_type": d.vel_type._name_,
         "ecef_m": [x, y, z], "ecef_sigma_m": [float(v) for v in d.position_sigma_m],
         "vel_ecef_mps": [float(v) for v in d.velocity_mps],
         "vel_sigma_mps": [float(v) for v in d.velocity_sigma_mps],

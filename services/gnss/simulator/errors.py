@@ -85,18 +85,22 @@ def _gauss_markov_step(z: np.ndarray, tau_s: tuple, dt_s: float,
                        rng: np.random.Generator) -> np.ndarray:
     """Unit-variance first-order Gauss-Markov processes (one row per source, one column per
     axis) moved on by dt_s (Brown & Hwang: x' = a x + sqrt(1 - a^2) w, a = exp(-dt/tau))."""
-    a, b = _gauss_markov_coefficients(tau_s, dt_s)
+    a, b = _gauss_markov_coefficients(tau_s, dt_s, z.shape[1])
     return a * z + b * rng.standard_normal(z.shape)
 
 
 @functools.lru_cache(maxsize=64)
-def _gauss_markov_coefficients(tau_s: tuple, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """a and sqrt(1 - a^2) as columns. Remembered: the epochs are mostly the same time apart,
-    and the exponentials cost more than the step."""
+def _gauss_markov_coefficients(tau_s: tuple, dt_s: float, axes: int) -> tuple[np.ndarray, np.ndarray]:
+    """a and sqrt(1 - a^2), each row repeated over `axes` columns (read-only). Remembered: the
+    epochs are mostly the same time apart, and the exponentials cost more than the step; and
+    whole rows, since numpy multiplies arrays of one shape twice as fast as it broadcasts."""
     tau = np.array(tau_s, float)
     white = tau <= 0.0
     a = np.where(white, 0.0, np.exp(-dt_s / np.where(white, 1.0, tau)))
-    return a[:, None], np.sqrt(1.0 - a * a)[:, None]
+    rows = np.repeat(a[:, None], axes, axis=1), np.repeat(np.sqrt(1.0 - a * a)[:, None], axes, axis=1)
+    for r in rows:
+        r.flags.writeable = False
+    return rows
 
 
 class CommonErrors:
@@ -409,9 +413,13 @@ class GnssErrorModel:
         self.tau = tuple(s.tau_s for s in self.sources)
         self.common = common
         if common is not None:
-            self._common_rows = [i for i, s in enumerate(self.sources) if s.common]
-            if tuple(self.sources[i].name for i in self._common_rows) != common.names:
+            rows = [i for i, s in enumerate(self.sources) if s.common]
+            if tuple(self.sources[i].name for i in rows) != common.names:
                 raise ValueError("the receiver's common error sources are not the car's")
+            # the rows the car's sky overwrites: a slice when they follow each other (as in the
+            # budget's table), which numpy assigns several times faster than a list of rows
+            together = rows and rows == list(range(rows[0], rows[-1] + 1))
+            self._common_rows = slice(rows[0], rows[-1] + 1) if together else rows
         self.extras = None if self.profile.wander_only else StandaloneErrors(rng, self.profile)
         self._dop = 1.0
         self.set_cep(cep_m, vertical_ratio)
@@ -450,7 +458,7 @@ class GnssErrorModel:
             self._z = _gauss_markov_step(self._z, self.tau, dt, self.rng)
         if self.common is not None:
             self._z[self._common_rows] = self.common.at(int(round(t_s * 1000)) if gps_ms is None else gps_ms)
-        position = (self._z * self._sigma).sum(axis=0)
+        position = np.add.reduce(self._z * self._sigma, axis=0)        # .sum(axis=0) without its wrapper
         if self.extras is None:
             return position, self.rng.standard_normal(3) * self.velocity_sigma
         self._dop = dop_factor(sats)

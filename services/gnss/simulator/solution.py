@@ -76,10 +76,6 @@ class Solution:
         return float(e), float(n), float(u)
 
 
-def _rotate_enu_to_ecef(vec_enu, lat_deg: float, lon_deg: float) -> np.ndarray:
-    return np.array(pymap3d.enu2uvw(*vec_enu, lat_deg, lon_deg), float)
-
-
 def _enu_axes(lat_deg: float, lon_deg: float) -> np.ndarray:
     """Columns: the E, N, U unit vectors in ECEF."""
     lat, lon = math.radians(lat_deg), math.radians(lon_deg)
@@ -87,15 +83,11 @@ def _enu_axes(lat_deg: float, lon_deg: float) -> np.ndarray:
     return np.array([[-sl, -sp * cl, cp * cl], [cl, -sp * sl, cp * sl], [0.0, cp, sp]])
 
 
-def _sigma_ecef(sigma_enu, lat_deg: float, lon_deg: float) -> tuple:
-    """Per-axis ECEF sigmas of per-axis ENU ones. Remembered: a receiver's sigmas and the
-    origin stay the same from epoch to epoch, and the matrix products cost more than the rest
-    of an epoch's arithmetic."""
-    return _sigma_ecef_of(tuple(float(v) for v in sigma_enu), float(lat_deg), float(lon_deg))
-
-
 @functools.lru_cache(maxsize=64)
 def _sigma_ecef_of(sigma_enu: tuple, lat_deg: float, lon_deg: float) -> tuple:
+    """Per-axis ECEF sigmas of per-axis ENU ones (a tuple of floats). Remembered: a receiver's
+    sigmas and the origin stay the same from epoch to epoch, and the matrix products cost more
+    than the rest of an epoch's arithmetic."""
     r = _enu_axes(lat_deg, lon_deg)
     cov = r @ np.diag(np.square(sigma_enu)) @ r.T
     return tuple(float(v) for v in np.sqrt(np.diag(cov)))
@@ -138,24 +130,26 @@ class TruthSolver:
         if sky.outage or gps_ms < self.no_fix_until_ms:
             return self._no_fix(gps_ms, sky)
         dt = max(-0.2, min(0.2, (utc_ns - truth.t_ns) / 1e9))
-        vel_enu = truth.vel_enu_of(self.lever_arm_m)
-        enu = truth.enu_of(self.lever_arm_m) + vel_enu * dt
-        lat0, lon0, h0 = truth.origin
-        ecef = np.array(pymap3d.enu2ecef(*enu, lat0, lon0, h0), float)
-        ecef += _rotate_enu_to_ecef(err_pos, lat0, lon0)
+        # 3-vectors as floats from here: element by element the same IEEE operations numpy
+        # would do (so the same bits), at a fraction of the cost of numpy on tiny arrays
+        frame = truth.frame
+        vel_enu = truth.vel_enu_of(self.lever_arm_m).tolist()
+        enu = [p + v * dt for p, v in zip(truth.enu_of(self.lever_arm_m).tolist(), vel_enu)]
+        ecef = [p + e for p, e in zip(frame.ecef_of_enu(*enu), frame.vector_of_enu(*err_pos.tolist()))]
         # a Doppler velocity is DOPPLER_LATENCY_S old at its time tag (vol. 2, BESTVEL:
         # "subtract from the time"), so it is the velocity of that earlier instant
-        vel_then = vel_enu + truth.accel_enu_mps2 * (dt - DOPPLER_LATENCY_S)
-        vel = _rotate_enu_to_ecef(vel_then + err_vel, lat0, lon0)
-        sigma_enu = self.errors.sigma_enu
+        lag = dt - DOPPLER_LATENCY_S
+        vel_then = [v + a * lag for v, a in zip(vel_enu, np.asarray(truth.accel_enu_mps2, float).tolist())]
+        vel = frame.vector_of_enu(*(v + e for v, e in zip(vel_then, err_vel.tolist())))
+        lat0, lon0, _ = truth.origin
+        sigma_enu = tuple(self.errors.sigma_enu.tolist())
         sol = Solution(
-            gps_ms, SolutionStatus.SOL_COMPUTED, self.pos_type, tuple(map(float, ecef)),
-            _sigma_ecef(sigma_enu, lat0, lon0), SolutionStatus.SOL_COMPUTED,
-            PositionType.DOPPLER_VELOCITY, tuple(map(float, vel)),
-            _sigma_ecef(self.errors.velocity_sigma, lat0, lon0),
+            gps_ms, SolutionStatus.SOL_COMPUTED, self.pos_type, tuple(ecef),
+            _sigma_ecef_of(sigma_enu, float(lat0), float(lon0)), SolutionStatus.SOL_COMPUTED,
+            PositionType.DOPPLER_VELOCITY, vel,
+            _sigma_ecef_of(tuple(self.errors.velocity_sigma.tolist()), float(lat0), float(lon0)),
             sats_tracked=sky.sats_tracked, sats_used=sky.sats_used,
-            undulation_m=self.undulation_m,
-            sigma_enu_m=tuple(float(v) for v in sigma_enu))
+            undulation_m=self.undulation_m, sigma_enu_m=sigma_enu)
         self._last_fix = sol
         return sol
 

@@ -91,11 +91,11 @@ def frame_crc_ok(data: bytes | bytearray, start: int = 0) -> bool:
 
 def _unpack(data: bytes | bytearray, start: int) -> Frame | None:
     """The frame at `start` (CRC already checked), or None if its values are impossible."""
-    board_id, *v = _PAYLOAD.unpack_from(data, start + 2)
-    for x, (lo, hi) in zip(v, LIMITS):
+    v = _PAYLOAD.unpack_from(data, start + 2)
+    for x, (lo, hi) in zip(v[1:], LIMITS):
         if not lo <= x <= hi:                  # also false for nan
             return None
-    return Frame(board_id, tuple(v[0:3]), tuple(v[3:6]), tuple(v[6:9]), tuple(v[9:12]))
+    return Frame(v[0], v[1:4], v[4:7], v[7:10], v[10:13])
 
 
 def decode_frame(data: bytes) -> Frame:
@@ -135,6 +135,9 @@ class FrameDecoder:
         self._ever_locked = False  # a first lock is an acquisition, later ones are resyncs
         self._waiting = False      # a complete candidate waits at the buffer's start
         self._silence_refused = False   # ... and silence could not confirm it
+        #: the last candidate whose CRC and values checked, (stream offset, frame): a frame that
+        #: waited for the bytes after it is judged again, without checking them twice
+        self._checked: tuple[int, Frame] | None = None
 
     @property
     def waiting(self) -> bool:
@@ -147,6 +150,7 @@ class FrameDecoder:
         self._buf.clear()
         self._base = 0
         self._lost = self._ever_locked = self._waiting = self._silence_refused = False
+        self._checked = None
 
     def feed(self, data: bytes | bytearray) -> list[tuple[int, Frame]]:
         self._buf += data
@@ -203,13 +207,19 @@ class FrameDecoder:
     def _judge(self, buf: bytearray, i: int, n: int, silent: bool):
         """The frame whose sync is at i, None if it is refused (counted), or _WAIT."""
         stats = self.stats
-        if not frame_crc_ok(buf, i):
-            stats.crc_errors += 1
-            return None
-        frame = _unpack(buf, i)
-        if frame is None:
-            stats.out_of_range += 1
-            return None
+        at = self._base + i
+        checked = self._checked
+        if checked is not None and checked[0] == at:
+            frame = checked[1]
+        else:
+            if not frame_crc_ok(buf, i):
+                stats.crc_errors += 1
+                return None
+            frame = _unpack(buf, i)
+            if frame is None:
+                stats.out_of_range += 1
+                return None
+            self._checked = (at, frame)
         after = i + FRAME_SIZE
         if n - after >= 2:
             if buf[after] == 0xAA and buf[after + 1] == 0xBB:

@@ -186,7 +186,8 @@ class ErrorState:
         if not self._line_rms:
             self._line_rms = [[] for _ in range(6)]
         self._motion = [0j for _ in errors.lines]                 # each resonance's phasor
-        self._vibration_dt, self._fixed = -1.0, [None] * len(errors.lines)
+        #: per step length dt: dt as the resonators take it, and the fixed lines' resonators (None: moving)
+        self._resonators: dict[float, tuple[float, list]] = {}
         self._white = [*errors.engine_white_gyro_dps, *errors.engine_white_accel_g]
         self._shakes = bool(self._lines) or any(self._white)
         self._normals = _Normals(rng)
@@ -240,17 +241,25 @@ class ErrorState:
         n = len(self._lines)
         i = self._normals.take(2 * n + 6)
         z = self._normals.values
-        if abs(dt - self._vibration_dt) > 1e-9:           # the fixed lines' resonators, for this step
-            self._vibration_dt = dt
-            self._fixed = [resonator(hz, width, round(dt, 7)) if not per_mps else None
-                           for hz, per_mps, width, _ in self._lines]
+        dt_key, fixed = self._resonators.get(dt) or self._resonators_for(dt)
         amps = []
         motion = self._motion
         for j, (hz, hz_per_mps, width, is_engine) in enumerate(self._lines):
-            rho, sigma = self._fixed[j] or resonator(round(hz + hz_per_mps * speed, 1), width, round(dt, 7))
-            c = rho * motion[j] + sigma * complex(z[i + 2 * j], z[i + 2 * j + 1])
-            amps.append((c.real - motion[j].real) * (engine if is_engine else road))
-            motion[j] = c
-        i += 2 * n
-        return [o + sum(map(operator.mul, amps, rms)) + engine * w * z[i + axis]
-                for axis, (o, rms, w) in enumerate(zip(self._offset, self._line_rms, self._white))]
+            rho, sigma = fixed[j] or resonator(round(hz + hz_per_mps * speed, 1), width, dt_key)
+            m = motion[j]
+            # sigma w as complex(sigma re, sigma im): the same numbers as sigma * w, a float times a complex
+            c = motion[j] = rho * m + complex(sigma * z[i], sigma * z[i + 1])
+            i += 2
+            amps.append((c.real - m.real) * (engine if is_engine else road))
+        return [o + sum(map(operator.mul, amps, rms)) + engine * w * x
+                for o, rms, w, x in zip(self._offset, self._line_rms, self._white, z[i:i + 6])]
+
+    def _resonators_for(self, dt: float) -> tuple[float, list]:
+        """dt to 0.1 us (the resonators' cache key) and the fixed lines' resonators, for steps of dt
+        (the live twin's steps take a few values: 10 or 20 ms as the sim polls it)."""
+        if len(self._resonators) > 32:
+            self._resonators.clear()
+        dt_key = round(dt, 7)
+        step = self._resonators[dt] = (dt_key, [resonator(hz, width, dt_key) if not per_mps else None
+                                                for hz, per_mps, width, _ in self._lines])
+        return step

@@ -22,7 +22,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from viena.common.rotation import euler_from_quat
 from viena.services.imu.driver.razor_ahrs import GYRO_LSB_PER_DPS
 from viena.services.imu.model.calibration import (
     HMC5843_TESLA_PER_COUNT,
@@ -125,6 +124,16 @@ def _rint(x: float) -> float:
     return math.copysign(float(round(x)), x)
 
 
+def _register(x: float, lo: float, hi: float) -> float:
+    """What a register of whole counts lo..hi holds for x: min(max(_rint(x), lo), hi), a nan
+    staying nan (one call, not three: the board makes six of these per sample)."""
+    if x < lo:
+        return lo
+    if x > hi:
+        return hi
+    return math.copysign(float(round(x)), x) if x == x else x
+
+
 class Measurement(NamedTuple):
     accel_lsb: tuple        # what the ADXL345 registers hold
     accel_g: tuple          # after the firmware's EEPROM calibration
@@ -140,6 +149,9 @@ class _Run:
         self.errors: ErrorState = board.errors.start(rng, t_s)
         self.accel_to_board = self.errors.accel_matrix @ board._to_board
         self.gyro_to_board = self.errors.gyro_matrix @ board._to_board
+        # the same, as rows of Python floats (for measure); the accelerometer's in g
+        self.accel_rows = (self.accel_to_board / STANDARD_GRAVITY).tolist()
+        self.gyro_rows = self.gyro_to_board.tolist()
         # the firmware subtracts a float boot average from whole ITG-3200 counts: its outputs
         # sit on the count grid shifted by that average's fraction
         self.grid_dps = float(rng.uniform(-0.5, 0.5)) / GYRO_LSB_PER_DPS if board.errors is not NO_ERRORS else 0.0
@@ -155,6 +167,12 @@ class _Run:
             self._alpha_dt = dt
             self._alpha = 1.0 - math.exp(-2.0 * math.pi * self.cutoff_hz * dt) if self.cutoff_hz > 0 else 1.0
         return self._alpha
+
+
+def _mat_vec(rows: list, v) -> list[float]:
+    """rows v for a 3x3 matrix given as rows of Python floats and a 3-vector of them."""
+    x, y, z = v
+    return [r0 * x + r1 * y + r2 * z for r0, r1, r2 in rows]
 
 
 @dataclass(frozen=True)
@@ -188,6 +206,8 @@ class RazorBoard:
                      "mag_offset_counts", "mag_c", "mag_noise_counts", "field_enu_nT"):
             object.__setattr__(self, "_" + name, np.array(getattr(self, name), float))
         object.__setattr__(self, "_to_board", Mount(tuple(self.mount_zyx_deg)).matrix.T)
+        # body field [T] to what the HMC5843 counts before its offset: C (to_board h) / tesla_per_count
+        object.__setattr__(self, "_mag_rows", (self._mag_c @ self._to_board / self.tesla_per_count).tolist())
         # the per-axis figures, axis by axis, as Python floats (for measure)
         object.__setattr__(self, "_accel_axes", tuple(zip(*(
             getattr(self, "_" + name).tolist() for name in (
@@ -218,29 +238,24 @@ class RazorBoard:
         """One sample of the three sensors (the white noise drawn accel, gyro, mag, 3 each;
         the first sample also starts the run's errors from `rng`).
 
-        The matrix products are numpy's; the per-axis arithmetic after them is written in
-        Python floats, because on 3-vectors numpy's per-call cost is several times the
-        arithmetic's, every sample."""
+        Python floats throughout, the matrices as rows: on 3-vectors numpy's per-call cost is
+        several times the arithmetic's, every sample."""
         run = self._run or self.run(rng, truth.t_s)
         err = run.errors.step(truth.t_s, truth.speed_mps)
-        f_g = (run.accel_to_board @ np.asarray(truth.specific_force_body_mps2, float) / STANDARD_GRAVITY).tolist()
-        noise = rng.standard_normal(3).tolist()
-        lsb = [min(max(_rint(gain * (f + e) + offset + sigma * z), -4096.0), 4095.0)  # 13 bits at +-16 g
+        noise = rng.standard_normal(9).tolist()          # as three draws of 3: accel, gyro, mag
+        f_g = _mat_vec(run.accel_rows, truth.specific_force_body_mps2.tolist())
+        lsb = [_register(gain * (f + e) + offset + sigma * z, -4096.0, 4095.0)        # 13 bits at +-16 g
                for (gain, offset, sigma, _, _), f, e, z in zip(self._accel_axes, f_g, err[3:], noise)]
-        accel_g = [(v - eeprom_offset) / eeprom_gain
-                   for (_, _, _, eeprom_offset, eeprom_gain), v in zip(self._accel_axes, lsb)]
-        w_body = (run.gyro_to_board @ np.asarray(truth.gyro_body_radps, float)).tolist()
-        noise = rng.standard_normal(3).tolist()
+        accel_g = tuple([(v - eeprom_offset) / eeprom_gain
+                         for (_, _, _, eeprom_offset, eeprom_gain), v in zip(self._accel_axes, lsb)])
+        w_body = _mat_vec(run.gyro_rows, truth.gyro_body_radps.tolist())
         alpha, grid = run.alpha(run.errors.dt), run.grid_dps
         low = run.lowpass = [x + alpha * (sigma * z - x)                # the chip's low-pass, on the noise
-                             for x, (_, sigma), z in zip(run.lowpass, self._gyro_axes, noise)]
-        w = [_rint((math.degrees(v) + bias + e + n + grid) * GYRO_LSB_PER_DPS) / GYRO_LSB_PER_DPS - grid
-             for (bias, _), v, e, n in zip(self._gyro_axes, w_body, err, low)]
-        h = self._to_board @ np.asarray(truth.mag_body_T(self._field_enu_nT), float) / self.tesla_per_count
-        soft = (self._mag_c @ h).tolist()
-        noise = rng.standard_normal(3).tolist()
-        m = [min(max(_rint(v + offset + sigma * z), -2048.0), 2047.0)
-             for (offset, sigma), v, z in zip(self._mag_axes, soft, noise)]
-        yaw, pitch, roll = euler_from_quat(truth.quat)
-        return Measurement(tuple(lsb), tuple(accel_g), tuple(w), tuple(m),
-                           (math.degrees(yaw), math.degrees(pitch), math.degrees(roll)))
+                             for x, (_, sigma), z in zip(run.lowpass, self._gyro_axes, noise[3:6])]
+        w = tuple([_rint((math.degrees(v) + bias + e + n + grid) * GYRO_LSB_PER_DPS) / GYRO_LSB_PER_DPS - grid
+                   for (bias, _), v, e, n in zip(self._gyro_axes, w_body, err, low)])
+        soft = _mat_vec(self._mag_rows, truth.mag_body_T(self._field_enu_nT).tolist())
+        m = tuple([_register(v + offset + sigma * z, -2048.0, 2047.0)
+                   for (offset, sigma), v, z in zip(self._mag_axes, soft, noise[6:])])
+        yaw, pitch, roll = truth.euler_rad
+        return Measurement(tuple(lsb), accel_g, w, m, (math.degrees(yaw), math.degrees(pitch), math.degrees(roll)))

@@ -10,6 +10,9 @@ import numpy as np
 class Route:
     """A closed path with a look-ahead query for pure pursuit."""
 
+    #: where lookahead searches for the closest point: from 2 points before the last one found
+    WINDOW = range(-2, 12)
+
     def __init__(self, points_enu: np.ndarray):
         self.points = np.asarray(points_enu, float)
         seg = np.diff(np.vstack([self.points, self.points[:1]]), axis=0)
@@ -21,6 +24,10 @@ class Route:
         # and indexing numpy arrays one element at a time costs more than the arithmetic
         self._xs, self._ys = self.points[:, 0].tolist(), self.points[:, 1].tolist()
         self._s_list, self._seglen_list = self._s.tolist(), self._seglen.tolist()
+        # lookahead's search window after each point: its indices and their coordinates
+        n = len(self._xs)
+        self._windows = [[(j, self._xs[j], self._ys[j]) for j in ((i + k) % n for k in self.WINDOW)]
+                         for i in range(n)]
 
     def start_pose(self) -> tuple[float, float, float]:
         """First point and the yaw (ENU, CCW, 0 = North) along the first segment."""
@@ -37,10 +44,9 @@ class Route:
 
     def lookahead(self, x: float, y: float, distance_m: float) -> tuple[float, float]:
         """The route point `distance_m` beyond the closest point near the last one found."""
-        xs, ys, n = self._xs, self._ys, len(self._xs)
-        window = [(self._last + k) % n for k in range(-2, 12)]
-        d = [(xs[i] - x) ** 2 + (ys[i] - y) ** 2 for i in window]
-        self._last = window[d.index(min(d))]          # the first of equals, as np.argmin
+        window = self._windows[self._last]
+        d = [(px - x) ** 2 + (py - y) ** 2 for _, px, py in window]
+        self._last = window[d.index(min(d))][0]       # the first of equals, as np.argmin
         return self.point_at(self._s_list[self._last] + distance_m)
 
 

@@ -23,6 +23,13 @@ class OpenEnum(IntEnum):
         member._value_ = value
         return member
 
+    @classmethod
+    def of(cls, value: int):
+        """cls(value) for an int, by one dict look-up when the value has a name: the decoders
+        call this for every status of every log, and cls(value) costs ten times as much."""
+        member = cls._value2member_map_.get(value)
+        return cls(value) if member is None else member
+
 
 class MessageId(OpenEnum):
     """Message IDs of the commands and logs this driver speaks (Tables 10 and 44)."""

@@ -15,7 +15,7 @@ from __future__ import annotations
 import re
 import struct
 import zlib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 from .enums import MessageFormat, Port, TimeStatus
 
@@ -87,9 +87,10 @@ class Header:
     def time_status_enum(self) -> TimeStatus:
         return TimeStatus(self.time_status)
 
-    def pack(self) -> bytes:
-        return _HEADER.pack(SYNC, HEADER_LENGTH, self.message_id, self.message_type,
-                            self.port_address, self.length, self.sequence, self.idle_time,
+    def pack(self, length: int | None = None) -> bytes:
+        """The header's bytes; with `length`, as if its body length were that."""
+        return _HEADER.pack(SYNC, HEADER_LENGTH, self.message_id, self.message_type, self.port_address,
+                            self.length if length is None else length, self.sequence, self.idle_time,
                             self.time_status, self.week, self.milliseconds,
                             self.receiver_status, self.reserved, self.sw_version)
 
@@ -121,9 +122,7 @@ def unpack_header(buf, offset: int = 0) -> Header:
 
 def encode_frame(header: Header, body: bytes = b"") -> bytes:
     """Header (with its length set to the body's) + body + CRC."""
-    if header.length != len(body):
-        header = replace(header, length=len(body))
-    data = header.pack() + body
+    data = header.pack(len(body)) + body
     return data + _U32.pack(crc32(data))
 
 

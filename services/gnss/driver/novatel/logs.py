@@ -63,8 +63,8 @@ class BestXyz:
     @classmethod
     def from_body(cls, body: bytes) -> BestXyz:
         v = _unpack(cls, body)
-        return cls(SolutionStatus(v[0]), PositionType(v[1]), v[2:5], v[5:8],  # type: ignore[call-arg]
-                   SolutionStatus(v[8]), PositionType(v[9]), v[10:13], v[13:16],
+        return cls(SolutionStatus.of(v[0]), PositionType.of(v[1]), v[2:5], v[5:8],  # type: ignore[call-arg]
+                   SolutionStatus.of(v[8]), PositionType.of(v[9]), v[10:13], v[13:16],
                    _station(v[16]), *v[17:24], v[24])
 
 
@@ -111,7 +111,7 @@ class BestPos:
     @classmethod
     def from_body(cls, body: bytes) -> BestPos:
         v = _unpack(cls, body)
-        return cls(SolutionStatus(v[0]), PositionType(v[1]), *v[2:6], Datum(v[6]),  # type: ignore[call-arg]
+        return cls(SolutionStatus.of(v[0]), PositionType.of(v[1]), *v[2:6], Datum.of(v[6]),  # type: ignore[call-arg]
                    *v[7:10], _station(v[10]), *v[11:17], v[17])
 
 
@@ -140,7 +140,7 @@ class BestVel:
     @classmethod
     def from_body(cls, body: bytes) -> BestVel:
         v = _unpack(cls, body)
-        return cls(SolutionStatus(v[0]), PositionType(v[1]), *v[2:])
+        return cls(SolutionStatus.of(v[0]), PositionType.of(v[1]), *v[2:])
 
 
 LOGS: dict[int, type[BestXyz] | type[BestPos] | type[BestVel]] = {c.MESSAGE_ID: c for c in (BestXyz, BestPos, BestVel)}
