@@ -66,6 +66,7 @@ DEFAULT_QUERY_TIMEOUT_S = 10.0
 #: options that tune a network's delivery: in memory nothing is dropped or reordered
 _QOS = frozenset({"congestion_control", "priority", "express", "reliability"})
 _CLOSED = "session closed"
+_PUT = zenoh.SampleKind.PUT
 
 
 def _refuse_options(what: str, options: dict[str, Any]) -> None:
@@ -188,17 +189,14 @@ class _CallbackThread:
                 return
             due, call, item = job
             del job
-            _wait_until(due)
+            if due:
+                _wait_until(due)
             if not self._session.killed:
-                _call(call, item)
+                try:
+                    call(item)
+                except Exception:   # as zenoh-python: said, and the thread goes on (as text: a kept
+                    log.error("callback error\n%s", traceback.format_exc())   # traceback keeps a query)
             del item            # a query is finalized when its last reference goes: not at the next job
-
-
-def _call(call: Callable[[Any], None], item: Any) -> None:
-    try:
-        call(item)
-    except Exception:   # as zenoh-python: said, and the thread goes on (as text: a kept traceback keeps a query)
-        log.error("callback error\n%s", traceback.format_exc())
 
 
 # -- what a session declares ---------------------------------------------------------------------
@@ -240,7 +238,8 @@ class _Receiver(_Declared):
 
     def post(self, item: Any) -> None:
         if not self.undeclared:
-            self._thread.post(_due(self._session._bus.latency_s), self._deliver, item)
+            latency_s = self._session._bus.latency_s
+            self._thread.post(_due(latency_s) if latency_s else 0.0, self._deliver, item)
 
     def _vanish(self) -> None:
         super()._vanish()
@@ -313,11 +312,12 @@ class MemoryPublisher(_Declared):
         self.encoding = encoding
 
     def put(self, payload: Any, *, encoding: Any = None, **options: Any) -> None:
-        _refuse_options("Publisher.put", options)
-        self._session._check()
+        if options:
+            _refuse_options("Publisher.put", options)
         if self.undeclared:
+            self._session._check()
             raise zenoh.ZError("Undeclared publisher")
-        self._session._put(self.key, payload, _encoding(encoding, self.encoding))
+        self._session._put(self.key, payload, self.encoding if encoding is None else _encoding(encoding))
 
 
 class _Alive(_Declared):
@@ -617,8 +617,9 @@ class MemorySession:
             raise zenoh.ZError(_CLOSED)
 
     def _put(self, key: str, payload: Any, encoding: zenoh.Encoding) -> None:
-        self._check()
-        sample = Sample(_key_expr(key), zenoh.ZBytes(payload), encoding, zenoh.SampleKind.PUT)   # a copy of the bytes
+        if self._closed:
+            raise zenoh.ZError(_CLOSED)
+        sample = Sample(_key_expr(key), zenoh.ZBytes(payload), encoding, _PUT)   # a copy of the bytes
         for subscriber in self._bus._matching("subscribers", key):
             subscriber.post(sample)
 

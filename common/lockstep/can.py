@@ -76,6 +76,7 @@ class LockstepBus(can.BusABC):
         self._wakeups = 0
         self._hooked: weakref.WeakSet[can.Notifier] = weakref.WeakSet()
         self._failed: weakref.WeakSet[can.Notifier] = weakref.WeakSet()
+        self._known: tuple[can.Notifier, ...] = ()    # the Notifiers the last frame found, all hooked
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
         self._channels = _channels_of(self._clock)
         with _channels_lock:
@@ -108,16 +109,20 @@ class LockstepBus(can.BusABC):
             msg = self._inbox.get()
             if msg is None:
                 return
-            if self._matches_filters(msg):
+            if self._filters is None or self._matches_filters(msg):
                 self._deliver(msg)
 
     def _deliver(self, msg: can.Message) -> None:
         """What `Notifier._rx_thread` does with a frame, for every Notifier of this bus."""
-        for notifier in can.Notifier.find_instances(self):
-            if notifier.stopped or notifier in self._failed:
+        notifiers = can.Notifier.find_instances(self)
+        if notifiers != self._known:         # a Notifier came or went (the WeakSets are slow to ask per frame)
+            for notifier in notifiers:
+                if notifier not in self._hooked:
+                    self._hook(notifier)
+            self._known = notifiers
+        for notifier in notifiers:
+            if notifier.stopped or (self._failed and notifier in self._failed):
                 continue
-            if notifier not in self._hooked:
-                self._hook(notifier)
             try:
                 for listener in list(notifier.listeners):
                     listener(msg)
