@@ -40,15 +40,20 @@ def unit_quat_to_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
 
 
 def quat_from_euler(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    return np.array(quat_floats_from_euler(yaw, pitch, roll))
+
+
+def quat_floats_from_euler(yaw: float, pitch: float, roll: float) -> tuple[float, float, float, float]:
+    """quat_from_euler as a tuple of Python floats."""
     cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    return np.array([
+    return (
         cr * cp * cy + sr * sp * sy,
         sr * cp * cy - cr * sp * sy,
         cr * sp * cy + sr * cp * sy,
         cr * cp * sy - sr * sp * cy,
-    ])
+    )
 
 
 def euler_from_quat(q) -> tuple[float, float, float]:

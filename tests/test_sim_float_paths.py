@@ -13,7 +13,7 @@ import pytest
 from viena.common import rotation
 from viena.common.geodesy import LocalFrame
 from viena.services.sim.model.car import SimCar
-from viena.services.sim.model.truth import IST_ORIGIN, Truth, truth_sample
+from viena.services.sim.model.truth import IST_ORIGIN, VECTORS, Truth, truth_sample
 
 
 def _origins(n: int):
@@ -87,3 +87,24 @@ def test_truth_built_by_hand_still_answers():
         rotation.quat_to_matrix(t.quat).T @ np.array([0.0, 0.0, 9.80665]))
     lat, lon, h = t.geodetic_of()
     assert (lat, lon, h) == pytest.approx(IST_ORIGIN, abs=1e-9)
+
+
+def test_a_truth_of_floats_reads_as_one_made_of_arrays():
+    """Truth.of_floats (the car's) against the constructor given the same vectors as arrays."""
+    car = SimCar(start_time_ns=0)
+    for k in range(3000):
+        t = car.step(0.01)
+        if k % 300:
+            continue
+        arrays = Truth(**{f.name: (np.array(t.floats(f.name)) if f.name in VECTORS else getattr(t, f.name))
+                          for f in dataclasses.fields(Truth)})
+        assert truth_sample(t) == truth_sample(arrays)
+        assert t.mag_body_T().tolist() == arrays.mag_body_T().tolist()
+        assert t.mag_body_T((1.0, 2.0, 3.0)).tolist() == arrays.mag_body_T((1.0, 2.0, 3.0)).tolist()
+        for name in VECTORS:
+            assert isinstance(getattr(t, name), np.ndarray)
+            assert getattr(t, name).tolist() == getattr(arrays, name).tolist()
+            assert t.floats(name) == arrays.floats(name)
+        assert repr(t) == repr(arrays)
+        moved = dataclasses.replace(t, t_s=1.0)
+        assert moved.enu_m is t.enu_m and moved.t_s == 1.0

@@ -76,6 +76,8 @@ from viena.services.gnss.driver.novatel.framing import (
     Header,
     crc32,
     encode_frame,
+    frame_of,
+    pack_header,
     unpack_header,
 )
 from viena.services.gnss.driver.novatel.logs import BestPos, BestVel, BestXyz
@@ -135,9 +137,12 @@ class ReceiverConfig:
 
 
 def bestxyz_of(s: Solution) -> BestXyz:
-    return BestXyz(s.pos_status, s.pos_type, s.ecef_m, s.ecef_sigma_m, s.vel_status,
-                   s.vel_type, s.vel_ecef_mps, s.vel_sigma_mps, "", s.vel_latency_s,
-                   s.diff_age_s, s.sol_age_s, s.sats_tracked, s.sats_used)
+    return BestXyz(*_bestxyz_fields(s))
+
+
+def _bestxyz_fields(s: Solution) -> tuple:
+    return (s.pos_status, s.pos_type, s.ecef_m, s.ecef_sigma_m, s.vel_status, s.vel_type, s.vel_ecef_mps,
+            s.vel_sigma_mps, "", s.vel_latency_s, s.diff_age_s, s.sol_age_s, s.sats_tracked, s.sats_used)
 
 
 def bestpos_of(s: Solution) -> BestPos:
@@ -157,6 +162,11 @@ def bestvel_of(s: Solution) -> BestVel:
 
 LOG_MAKERS: dict[int, Callable[[Solution], object]] = {
     MessageId.BESTXYZ: bestxyz_of, MessageId.BESTPOS: bestpos_of, MessageId.BESTVEL: bestvel_of,
+}
+#: each log's body, as LOG_MAKERS[id](solution).body(); BESTXYZ, every epoch, without making its log
+LOG_BODIES: dict[int, Callable[[Solution], bytes]] = {
+    MessageId.BESTXYZ: lambda s: BestXyz.pack(*_bestxyz_fields(s)),
+    MessageId.BESTPOS: lambda s: bestpos_of(s).body(), MessageId.BESTVEL: lambda s: bestvel_of(s).body(),
 }
 
 
@@ -273,6 +283,13 @@ class NovatelTwin(ByteTwin):
 
     def _header(self, message_id: int, gps_ms: int, *, message_type=BINARY_MESSAGE_TYPE,
                 sequence: int = 0, time_status: TimeStatus | None = None) -> Header:
+        time_status, week, ms = self._time_tag(gps_ms, time_status)
+        return Header(message_id, message_type=message_type, port_address=OWN_PORT,
+                      sequence=sequence, idle_time=IDLE_TIME, time_status=time_status,
+                      week=week, milliseconds=ms, sw_version=SW_VERSION)
+
+    def _time_tag(self, gps_ms: int, time_status: TimeStatus | None = None) -> tuple[TimeStatus, int, int]:
+        """A header's time status, week and milliseconds for an epoch."""
         if time_status is None:
             last = self._last_solution
             time_status = (TimeStatus.FREEWHEELING if last is not None and not last.has_fix
@@ -282,15 +299,17 @@ class NovatelTwin(ByteTwin):
             time_status = TimeStatus.UNKNOWN
             gps_ms = max(0, gps_ms - self._boot_gps_ms)
         week, ms = divmod(gps_ms, WEEK_MS)
-        return Header(message_id, message_type=message_type, port_address=OWN_PORT,
-                      sequence=sequence, idle_time=IDLE_TIME, time_status=time_status,
-                      week=week, milliseconds=ms, sw_version=SW_VERSION)
+        return time_status, week, ms
 
     # -- logs ------------------------------------------------------------------------
     def _emit(self, messages, solution: Solution) -> None:
+        # encode_frame(self._header(message, gps_ms), body) without making the Header
+        time_status, week, ms = self._time_tag(solution.gps_ms)
         for message in messages:
-            data = LOG_MAKERS[message](solution)
-            self._out += encode_frame(self._header(message, solution.gps_ms), data.body())
+            body = LOG_BODIES[message](solution)
+            header = pack_header(message, BINARY_MESSAGE_TYPE, OWN_PORT, len(body), 0, IDLE_TIME, time_status,
+                                 week, ms, sw_version=SW_VERSION)
+            self._out += frame_of(header, body)
 
     def _solve(self, gps_ms: int) -> Solution:
         last = self._last_solution

@@ -133,13 +133,13 @@ class TruthSolver:
         # 3-vectors as floats from here: element by element the same IEEE operations numpy
         # would do (so the same bits), at a fraction of the cost of numpy on tiny arrays
         frame = truth.frame
-        vel_enu = truth.vel_enu_of(self.lever_arm_m).tolist()
-        enu = [p + v * dt for p, v in zip(truth.enu_of(self.lever_arm_m).tolist(), vel_enu)]
+        vel_enu = truth.vel_enu_floats_of(self.lever_arm_m)
+        enu = [p + v * dt for p, v in zip(truth.enu_floats_of(self.lever_arm_m), vel_enu)]
         ecef = [p + e for p, e in zip(frame.ecef_of_enu(*enu), frame.vector_of_enu(*err_pos.tolist()))]
         # a Doppler velocity is DOPPLER_LATENCY_S old at its time tag (vol. 2, BESTVEL:
         # "subtract from the time"), so it is the velocity of that earlier instant
         lag = dt - DOPPLER_LATENCY_S
-        vel_then = [v + a * lag for v, a in zip(vel_enu, np.asarray(truth.accel_enu_mps2, float).tolist())]
+        vel_then = [v + a * lag for v, a in zip(vel_enu, truth.floats("accel_enu_mps2"))]
         vel = frame.vector_of_enu(*(v + e for v, e in zip(vel_then, err_vel.tolist())))
         lat0, lon0, _ = truth.origin
         sigma_enu = tuple(self.errors.sigma_enu.tolist())

@@ -205,6 +205,7 @@ class RazorBoard:
                      "eeprom_offset_lsb", "accel_noise_lsb", "gyro_bias_dps", "gyro_noise_dps",
                      "mag_offset_counts", "mag_c", "mag_noise_counts", "field_enu_nT"):
             object.__setattr__(self, "_" + name, np.array(getattr(self, name), float))
+        object.__setattr__(self, "_field_enu_T", self._field_enu_nT * 1e-9)      # as Truth.mag_body_T scales it
         object.__setattr__(self, "_to_board", Mount(tuple(self.mount_zyx_deg)).matrix.T)
         # body field [T] to what the HMC5843 counts before its offset: C (to_board h) / tesla_per_count
         object.__setattr__(self, "_mag_rows", (self._mag_c @ self._to_board / self.tesla_per_count).tolist())
@@ -248,13 +249,13 @@ class RazorBoard:
                for (gain, offset, sigma, _, _), f, e, z in zip(self._accel_axes, f_g, err[3:], noise)]
         accel_g = tuple([(v - eeprom_offset) / eeprom_gain
                          for (_, _, _, eeprom_offset, eeprom_gain), v in zip(self._accel_axes, lsb)])
-        w_body = _mat_vec(run.gyro_rows, truth.gyro_body_radps.tolist())
+        w_body = _mat_vec(run.gyro_rows, truth.floats("gyro_body_radps"))
         alpha, grid = run.alpha(run.errors.dt), run.grid_dps
         low = run.lowpass = [x + alpha * (sigma * z - x)                # the chip's low-pass, on the noise
                              for x, (_, sigma), z in zip(run.lowpass, self._gyro_axes, noise[3:6])]
         w = tuple([_rint((math.degrees(v) + bias + e + n + grid) * GYRO_LSB_PER_DPS) / GYRO_LSB_PER_DPS - grid
                    for (bias, _), v, e, n in zip(self._gyro_axes, w_body, err, low)])
-        soft = _mat_vec(self._mag_rows, truth.mag_body_T(self._field_enu_nT).tolist())
+        soft = _mat_vec(self._mag_rows, truth.body_of_enu(self._field_enu_T).tolist())   # mag_body_T
         m = tuple([_register(v + offset + sigma * z, -2048.0, 2047.0)
                    for (offset, sigma), v, z in zip(self._mag_axes, soft, noise[6:])])
         yaw, pitch, roll = truth.euler_rad

@@ -11,11 +11,9 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import numpy as np
-
 from viena.common import clock
 from viena.common.geodesy import normal_gravity
-from viena.common.rotation import quat_from_euler
+from viena.common.rotation import quat_floats_from_euler
 from viena.common.settings import setting
 from viena.services.sim.model.route import Route, default_route
 from viena.services.sim.model.truth import IST_ORIGIN, Truth
@@ -141,19 +139,19 @@ class SimCar:
         # out in floats: the same products and sums numpy would do, without its overhead
         c, s = math.cos(self._yaw), math.sin(self._yaw)
         v = self._v
-        vel = [v * -s, v * c, v * 0.0]
-        accel = [along_mps2 * -s + lateral_mps2 * -c, along_mps2 * c + lateral_mps2 * -s,
-                 along_mps2 * 0.0 + lateral_mps2 * 0.0]
+        vel = (v * -s, v * c, v * 0.0)
+        accel = (along_mps2 * -s + lateral_mps2 * -c, along_mps2 * c + lateral_mps2 * -s,
+                 along_mps2 * 0.0 + lateral_mps2 * 0.0)
         self._seq += 1
-        return Truth(
+        return Truth.of_floats(
             t_ns=self._t0_ns + int(round(self._t * 1e9)),
             t_s=self._t,
             origin=self.origin,
-            enu_m=np.array([self._x, self._y, 0.0]),
-            vel_enu_mps=np.array(vel),
-            accel_enu_mps2=np.array(accel),
-            quat=quat_from_euler(self._yaw, 0.0, 0.0),
-            gyro_body_radps=np.array([0.0, 0.0, yaw_rate]),
+            enu_m=(self._x, self._y, 0.0),
+            vel_enu_mps=vel,
+            accel_enu_mps2=accel,
+            quat=quat_floats_from_euler(self._yaw, 0.0, 0.0),
+            gyro_body_radps=(0.0, 0.0, yaw_rate),
             speed_mps=self._v,
             wheel_angle_rad=self._delta,
             gravity_mps2=self.gravity,

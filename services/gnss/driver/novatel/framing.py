@@ -89,10 +89,19 @@ class Header:
 
     def pack(self, length: int | None = None) -> bytes:
         """The header's bytes; with `length`, as if its body length were that."""
-        return _HEADER.pack(SYNC, HEADER_LENGTH, self.message_id, self.message_type, self.port_address,
-                            self.length if length is None else length, self.sequence, self.idle_time,
-                            self.time_status, self.week, self.milliseconds,
-                            self.receiver_status, self.reserved, self.sw_version)
+        return pack_header(self.message_id, self.message_type, self.port_address,
+                           self.length if length is None else length, self.sequence, self.idle_time,
+                           self.time_status, self.week, self.milliseconds,
+                           self.receiver_status, self.reserved, self.sw_version)
+
+
+def pack_header(message_id: int, message_type: int, port_address: int, length: int, sequence: int,
+                idle_time: int, time_status: int, week: int, milliseconds: int, receiver_status: int = 0,
+                reserved: int = 0, sw_version: int = 0) -> bytes:
+    """The bytes of a Header of these fields (its fields' order) without making one: a
+    receiver's twin writes a few every epoch."""
+    return _HEADER.pack(SYNC, HEADER_LENGTH, message_id, message_type, port_address, length, sequence,
+                        idle_time, time_status, week, milliseconds, receiver_status, reserved, sw_version)
 
 
 @dataclass(frozen=True, slots=True)
@@ -122,7 +131,12 @@ def unpack_header(buf, offset: int = 0) -> Header:
 
 def encode_frame(header: Header, body: bytes = b"") -> bytes:
     """Header (with its length set to the body's) + body + CRC."""
-    data = header.pack(len(body)) + body
+    return frame_of(header.pack(len(body)), body)
+
+
+def frame_of(header: bytes, body: bytes) -> bytes:
+    """A packed header (its length the body's) + body + CRC."""
+    data = header + body
     return data + _U32.pack(crc32(data))
 
 

@@ -7,7 +7,7 @@ data, and ``utc_ns`` gives the same instant in UTC.
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import ClassVar
 
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns
@@ -53,12 +53,19 @@ class BestXyz:
     reserved: bytes = b"\0\0\0\0"
 
     def body(self) -> bytes:
-        return self._BODY.pack(
-            self.pos_status, self.pos_type, *self.position_m, *self.position_sigma_m,
-            self.vel_status, self.vel_type, *self.velocity_mps, *self.velocity_sigma_mps,
-            _station_bytes(self.station_id), self.vel_latency_s, self.diff_age_s,
-            self.sol_age_s, self.sats_tracked, self.sats_used, self.sats_l1_rtk,
-            self.sats_l2_rtk, self.reserved)
+        return self.pack(*(getattr(self, f.name) for f in fields(self)))
+
+    @classmethod
+    def pack(cls, pos_status: int, pos_type: int, position_m: Vec3, position_sigma_m: Vec3, vel_status: int,
+             vel_type: int, velocity_mps: Vec3, velocity_sigma_mps: Vec3, station_id: str = "",
+             vel_latency_s: float = 0.0, diff_age_s: float = 0.0, sol_age_s: float = 0.0, sats_tracked: int = 0,
+             sats_used: int = 0, sats_l1_rtk: int = 0, sats_l2_rtk: int = 0, reserved: bytes = b"\0\0\0\0") -> bytes:
+        """The body of a BestXyz of these fields (its fields, in order) without making one: the
+        NovAtel twin writes one every epoch."""
+        return cls._BODY.pack(
+            pos_status, pos_type, *position_m, *position_sigma_m, vel_status, vel_type, *velocity_mps,
+            *velocity_sigma_mps, _station_bytes(station_id), vel_latency_s, diff_age_s, sol_age_s,
+            sats_tracked, sats_used, sats_l1_rtk, sats_l2_rtk, reserved)
 
     @classmethod
     def from_body(cls, body: bytes) -> BestXyz:
