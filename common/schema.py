@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import builtins
 import math
+import threading
 from collections.abc import Callable, Hashable
 from typing import Any
 
@@ -51,16 +52,28 @@ def _finite_float(v) -> float:
     raise Invalid("expected a finite number", v)
 
 
-def _fast(expr: str) -> Callable[[Check], Check]:
-    """Attach an inline test for `v` that passes exactly the values a check keeps unchanged;
-    schemas compile these into one function for the common case (see _Fields)."""
+def _fast(expr: str, items: str | None = None) -> Callable[[Check], Check]:
+    """Attach an inline test for `v` that passes only values a check keeps unchanged (the
+    few it turns away take the slow path, which keeps them); schemas compile these into one
+    function for the common case (see _Fields). `items`: a test for a list `v` of such
+    values, cheaper than testing each (F.list uses it)."""
     def mark(fn: Check) -> Check:
         fn.fast = expr  # type: ignore[attr-defined]
+        if items is not None:
+            fn.fast_items = items  # type: ignore[attr-defined]
         return fn
     return mark
 
 
-_fast("type(v) is float and v - v == 0.0")(_finite_float)
+#: Names the inline tests use besides `v`: every compiled test's scope has them.
+#: `ONLY_STR.issuperset(map(type, v))` tests each item's exact type in C.
+_FAST_NAMES = {"ONLY_STR": frozenset([str]), "ONLY_FLOAT": frozenset([float])}
+
+#: `0.0 * x == 0.0` holds for every finite float and fails for NaN and the infinities, so
+#: one test on a sum covers all its terms (a sum of finite floats that overflows only
+#: takes the slow path).
+_fast("type(v) is float and v - v == 0.0",
+      items="type(v) is list and ONLY_FLOAT.issuperset(map(type, v)) and 0.0 * sum(v) == 0.0")(_finite_float)
 
 
 def _made(kind: str, **values: Any) -> Callable[[Check], Check]:
@@ -94,7 +107,7 @@ class F:
         raise Invalid("expected a time in int ns UTC", v)
 
     @staticmethod
-    @_fast("type(v) is str")
+    @_fast("type(v) is str", items="type(v) is list and ONLY_STR.issuperset(map(type, v))")
     def str(v):
         if type(v) is str:
             return v
@@ -113,7 +126,7 @@ class F:
         return v
 
     @staticmethod
-    @_fast("type(v) is dict and all([type(k) is str for k in v])")
+    @_fast("type(v) is dict and ONLY_STR.issuperset(map(type, v))")
     def map(v):
         if isinstance(v, dict) and all(type(k) is str for k in v):
             return v
@@ -132,9 +145,13 @@ class F:
             if isinstance(v, (list, tuple)) and len(v) == n:
                 return [_finite_float(x) for x in v]
             raise Invalid(f"expected a list of {n} finite numbers", v)
-        items = " and ".join(f"type(v[{i}]) is float and v[{i}] - v[{i}] == 0.0" for i in range(n))
+        if 0 < n <= 6:                        # inline: cheaper than two calls for a few terms
+            terms = [f"v[{i}]" for i in range(n)]
+            items = f"{' is '.join(f'type({x})' for x in terms)} is float and 0.0 * ({' + '.join(terms)}) == 0.0"
+        else:
+            items = "ONLY_FLOAT.issuperset(map(type, v)) and 0.0 * sum(v) == 0.0"
         check = _made("vec", n=n)(check)
-        return _fast(f"type(v) is list and len(v) == {n}" + (f" and {items}" if n <= 6 else " and False"))(check)
+        return _fast(f"type(v) is list and len(v) == {n} and {items}")(check)
 
     @staticmethod
     def list(item: Check) -> Check:
@@ -143,6 +160,8 @@ class F:
                 return [item(x) for x in v]
             raise Invalid("expected a list", v)
         check = _made("list", item=item)(check)
+        if hasattr(item, "fast_items"):
+            return _fast(item.fast_items)(check)
         if hasattr(item, "fast"):           # a list whose items all pass as they are passes as it is
             return _fast(f"type(v) is list and all([({item.fast}) for v in v])")(check)
         return check
@@ -192,17 +211,19 @@ class _Fields:
     def _compile(self):
         """One function testing every field inline: True means the sample is valid as it
         is (the usual case, at a fraction of the cost); False means take the slow path,
-        which converts what it can and says exactly what is wrong."""
-        lines = ["def all_valid(sample):", "    get = sample.get"]
+        which converts what it can and says exactly what is wrong. A required field is read
+        with sample[k] (half the cost of .get): a missing one is a KeyError."""
+        lines = ["def all_valid(sample):", "    get = sample.get", "    try:"]
         for i, (k, c) in enumerate(self._items):
             expr = getattr(c, "fast", f"C[{i}](v) is v")
-            lines.append(f"    v = get({k!r}, M)")
             if getattr(c, "optional", False):
-                lines.append(f"    if v is not M and not ({expr}): return False")
+                lines.append(f"        v = get({k!r}, M)")
+                lines.append(f"        if v is not M and not ({expr}): return False")
             else:
-                lines.append(f"    if v is M or not ({expr}): return False")
-        lines.append("    return True")
-        scope = {"M": _MISSING, "C": [c for _, c in self._items]}
+                lines.append(f"        v = sample[{k!r}]")
+                lines.append(f"        if not ({expr}): return False")
+        lines += ["    except KeyError:", "        return False", "    return True"]
+        scope = {**_FAST_NAMES, "M": _MISSING, "C": [c for _, c in self._items]}
         exec("\n".join(lines), scope)
         return scope["all_valid"]
 
@@ -210,7 +231,7 @@ class _Fields:
         """Checks in place (a fresh dict from msgpack, or the caller's own for encode)."""
         if type(sample) is not dict:
             raise SampleError(f"{where}: {Invalid('expected a map', sample)}")
-        if strict and not sample.keys() <= self._keys:
+        if strict and not self._keys.issuperset(sample):
             extra = sorted(set(sample) - self._keys, key=str)[0]
             raise SampleError(f"{where}: unknown field {extra!r}")
         try:
@@ -258,7 +279,7 @@ class Schema:
         """Check and pack; raises SampleError rather than publish a bad value."""
         checked = self._fields.check(sample, self.name, True)
         try:
-            return msgpack.packb(checked, use_bin_type=True)
+            return _packer().pack(checked)
         except (OverflowError, TypeError, ValueError) as exc:   # e.g. in an F.any / F.map field
             raise SampleError(f"{self.name}: cannot be packed ({exc})") from None
 
@@ -309,18 +330,22 @@ class Reader:
         self._fast = self._compile()
 
     def _compile(self):
-        """One function: the values when each is what its check keeps, else None."""
-        lines = ["def fast(sample):", "    if type(sample) is not dict: return None", "    get = sample.get"]
+        """One function: the values when each is what its check keeps, else None (a field
+        without a default is read with sample[name], as in _Fields._compile)."""
+        lines = ["def fast(sample):", "    if type(sample) is not dict: return None",
+                 "    get = sample.get", "    try:"]
         for i, (name, check) in enumerate(zip(self.names, self._checks)):
             expr = getattr(check, "fast", f"C[{i}](v) is v")
-            lines.append(f"    v{i} = v = get({name!r}, M)")
             if name in self.defaults:
-                lines.append(f"    if v is M: v{i} = D[{i}]")
-                lines.append(f"    elif not ({expr}): return None")
+                lines.append(f"        v{i} = v = get({name!r}, M)")
+                lines.append(f"        if v is M: v{i} = D[{i}]")
+                lines.append(f"        elif not ({expr}): return None")
             else:
-                lines.append(f"    if v is M or not ({expr}): return None")
+                lines.append(f"        v{i} = v = sample[{name!r}]")
+                lines.append(f"        if not ({expr}): return None")
+        lines += ["    except KeyError:", "        return None"]
         lines.append(f"    return ({''.join(f'v{i}, ' for i in range(len(self.names)))})")
-        scope = {"M": _MISSING, "C": self._checks, "D": [self.defaults.get(n) for n in self.names]}
+        scope = {**_FAST_NAMES, "M": _MISSING, "C": self._checks, "D": [self.defaults.get(n) for n in self.names]}
         exec("\n".join(lines), scope)
         return scope["fast"]
 
@@ -364,6 +389,19 @@ def _fails_for_not_finite(check: Check, v: Any) -> bool:
     except (Invalid, SampleError):
         return False
     return True
+
+
+_packers = threading.local()
+
+
+def _packer() -> msgpack.Packer:
+    """This thread's Packer: msgpack.packb builds one per call, and a Packer is not
+    thread-safe (it empties its buffer after each pack, or a failed one)."""
+    try:
+        return _packers.packer
+    except AttributeError:
+        _packers.packer = msgpack.Packer(use_bin_type=True)
+        return _packers.packer
 
 
 def unpack(payload: bytes | bytearray | memoryview, what: str = "payload") -> Any:

@@ -121,3 +121,63 @@ def test_random_maps_are_accepted_only_when_valid(sample):
 def test_valid_samples_round_trip(x, v, seq, name):
     sample = dict(GOOD, x_m=x, v=v, seq=seq, name=name)
     assert EXAMPLE.decode(EXAMPLE.encode(dict(sample))) == sample
+
+
+INLINE = Schema("viena.test.inline/1", {
+    "v": F.vec(3), "big": F.vec(9), "floats": F.list(F.float), "names": F.list(F.str), "counts": F.map,
+    "maybe": F.optional(F.vec(2)),
+})
+
+
+def _inline_sample(**change):
+    sample = {"v": [1.0, 2.0, 3.0], "big": [float(i) for i in range(9)], "floats": [0.5, -0.5],
+              "names": ["gnss0"], "counts": {"imu": 1}}
+    return dict(sample, **change)
+
+
+@pytest.mark.parametrize("change", [
+    {"v": [1e308, 1e308, -1e308]},                 # finite, though their sum overflows
+    {"big": [1e308] * 9}, {"floats": [1.7e308, 1.7e308]}, {"floats": []},
+    {"names": []}, {"counts": {}}, {"maybe": None}, {"maybe": [-0.0, 5e-324]},
+])
+def test_the_inline_test_takes_what_its_check_keeps(change):
+    """The compiled test may send a valid sample to the slow path (a sum that overflows);
+    either way the sample passes unchanged, in the same bytes."""
+    sample = _inline_sample(**change)
+    before = {k: list(v) if isinstance(v, list) else v for k, v in sample.items()}
+    payload = INLINE.encode(sample)
+    assert payload == msgpack.packb(before, use_bin_type=True)
+    assert INLINE.decode(payload) == before
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"v": [1.0, float("nan"), 3.0]}, "v: expected a finite number"),
+    ({"v": [float("inf"), float("-inf"), 3.0]}, "v: expected a finite number"),
+    ({"big": [0.0] * 8 + [float("nan")]}, "big: expected a finite number"),
+    ({"floats": [1.0, float("inf")]}, "floats: expected a finite number"),
+    ({"names": ["gnss0", 1]}, "names: expected text"),
+    ({"counts": {"imu": 1, 2: 3}}, "counts: expected a map with text keys"),
+    ({"maybe": [1.0, float("nan")]}, "maybe: expected a finite number"),
+])
+def test_the_inline_test_turns_away_what_its_check_rejects(change, message):
+    with pytest.raises(SampleError, match=message):
+        INLINE.encode(_inline_sample(**change))
+
+
+def test_whole_numbers_in_a_vec_become_floats():
+    sample = _inline_sample(v=[1, 2.0, 3], floats=[1, 2])
+    assert msgpack.unpackb(INLINE.encode(sample))["v"] == [1.0, 2.0, 3.0]
+    assert [type(x) for x in sample["floats"]] == [float, float]
+
+
+def test_encode_packs_as_packb_does():
+    sample = dict(GOOD, x_m=4918490.531999923)
+    assert EXAMPLE.encode(dict(sample)) == msgpack.packb(sample, use_bin_type=True)
+    with pytest.raises(SampleError, match="cannot be packed"):
+        HEALTH.encode(dict(HEALTH.decode(HEALTH.encode(_health())), state={"x": object()}))
+    assert HEALTH.encode(_health()) == msgpack.packb(_health(), use_bin_type=True)   # a failed pack left nothing behind
+
+
+def _health():
+    return {"t": 1_700_000_000_000_000_000, "seq": 1, "service": "sim", "uptime_s": 1.0,
+            "rates_hz": {}, "counts": {}, "errors": {}}
