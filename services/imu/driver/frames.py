@@ -215,10 +215,11 @@ class FrameDecoder:
             if not frame_crc_ok(buf, i):
                 stats.crc_errors += 1
                 return None
-            frame = _unpack(buf, i)
-            if frame is None:
+            unpacked = _unpack(buf, i)
+            if unpacked is None:
                 stats.out_of_range += 1
                 return None
+            frame = unpacked
             self._checked = (at, frame)
         after = i + FRAME_SIZE
         if n - after >= 2:
