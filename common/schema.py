@@ -278,10 +278,13 @@ class Schema:
     def encode(self, sample: dict) -> bytes:
         """Check and pack; raises SampleError rather than publish a bad value."""
         checked = self._fields.check(sample, self.name, True)
+        packer = _take_packer()
         try:
-            return _packer().pack(checked)
+            return packer.pack(checked)
         except (OverflowError, TypeError, ValueError) as exc:   # e.g. in an F.any / F.map field
             raise SampleError(f"{self.name}: cannot be packed ({exc})") from None
+        finally:
+            _packers.packer = packer
 
     def decode(self, payload: bytes | bytearray | memoryview) -> dict:
         """Unpack and check; unknown fields from newer producers are kept."""
@@ -394,14 +397,14 @@ def _fails_for_not_finite(check: Check, v: Any) -> bool:
 _packers = threading.local()
 
 
-def _packer() -> msgpack.Packer:
-    """This thread's Packer: msgpack.packb builds one per call, and a Packer is not
-    thread-safe (it empties its buffer after each pack, or a failed one)."""
-    try:
-        return _packers.packer
-    except AttributeError:
-        _packers.packer = msgpack.Packer(use_bin_type=True)
-        return _packers.packer
+def _take_packer() -> msgpack.Packer:
+    """This thread's Packer, taken until the caller puts it back: msgpack.packb builds one
+    per call; a Packer is not thread-safe (one per thread) and not re-entrant, so an encode
+    made while one packs (a __del__, a dict subclass's items()) builds its own. A Packer
+    empties its buffer after each pack, or a failed one."""
+    packer = getattr(_packers, "packer", None)
+    _packers.packer = None
+    return packer if packer is not None else msgpack.Packer(use_bin_type=True)
 
 
 def unpack(payload: bytes | bytearray | memoryview, what: str = "payload") -> Any:

@@ -31,6 +31,14 @@ def test_projection_progress_sign_and_ends():
     assert east.project(3.0, 0.5).path_yaw_rad == pytest.approx(-math.pi / 2)   # yaw CCW from north
 
 
+def test_a_position_that_is_not_finite_is_refused_not_projected():
+    for near in (None, 4.0):
+        with pytest.raises(ValueError, match="finite"):
+            NORTH.project(math.nan, 4.0, near_s_m=near)
+        with pytest.raises(ValueError, match="finite"):
+            NORTH.project(0.0, math.inf, near_s_m=near)
+
+
 def test_closed_loop_start_is_found_at_its_start_then_followed_to_its_end():
     square = Path([(0, 0), (0, 10), (-10, 10), (-10, 0), (0, 0)])
     assert square.project(0.2, 0.1).s_m == pytest.approx(0.1)      # not 40: the earliest wins

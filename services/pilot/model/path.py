@@ -88,6 +88,8 @@ class Path:
         """The nearest place on the path; with `near_s_m`, only among the legs within
         [near_s_m - behind_m, near_s_m + ahead_m], so a loop's end is not taken for its
         start and the car's progress moves on smoothly."""
+        if not (math.isfinite(x_m) and math.isfinite(y_m)):
+            raise ValueError(f"a position to project must be finite, got ({x_m}, {y_m})")
         first, last = 0, len(self.seg_len_m) - 1
         if near_s_m is not None:        # bisect on the floats: np.searchsorted's answers, a tenth of the cost
             first = min(last, max(0, bisect_right(self._s_list, near_s_m - behind_m) - 1))

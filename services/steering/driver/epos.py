@@ -366,6 +366,8 @@ class EposDrive:
     # -- callbacks from canopen's receive thread ------------------------------------------
     def _on_tpdo(self, pdo) -> None:
         now = self._clock()
+        if len(pdo.data) < (TPDO1 if pdo is self._tpdo1 else TPDO2).size:
+            return          # not what the drive was told to send (another node on its COB-ID): not feedback
         with self._fb_lock:
             fb = self._feedback
             if pdo is self._tpdo1:
