@@ -81,10 +81,17 @@ class SimService(Service):
             delay = next_t - clock.monotonic()
             if delay > 0:
                 self.stopping.wait(delay)
-            elif delay < -0.5:                 # fell far behind (suspended): resync, say so
-                self.log.warning("behind by %.1f s: skipping ahead", -delay)
+            elif delay < -0.5:                 # fell far behind (suspended, starved): say so, catch up
+                # The world did not stop meanwhile: the car is stepped through the time it
+                # missed (publishing none of it), so its clock stays on the wall clock. Skipping
+                # the time instead left every later truth and GNSS time behind the IMU's, which
+                # its service stamps on arrival: the estimator then fused fixes a second old.
+                missed = int(-delay / dt)
+                self.log.warning("behind by %.1f s: the car catches up %d steps", -delay, missed)
                 self.health.error("overrun")
-                next_t = clock.monotonic()
+                for _ in range(missed):
+                    self.car.step(dt)
+                next_t += missed * dt
         self.health.set("position_enu_m", [round(v, 2) for v in self.car.truth().enu_m])
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import pymap3d
 import pytest
 
+from viena.common import clock
 from viena.common.health import HEALTH
 from viena.common.rotation import quat_to_matrix
 from viena.lockstep_car import LockstepCar, profile_programs
@@ -167,3 +168,25 @@ def test_a_killed_receiver_goes_silent_and_comes_back_on_restart():
         car.start("gnss0")
         assert car.run_until(lambda: len(fixes) > before + 20, within_s=10)
         assert fixes[-1]["valid"]
+
+
+def test_a_sim_that_falls_behind_catches_the_car_up_to_the_wall_clock():
+    """A sim starved for over half a second steps the car through the time it missed: its
+    truth (and the GNSS twins' times) stay on the clock the IMU's samples are stamped with.
+    Skipping the time instead left them a second behind the IMU for good."""
+    with LockstepCar(seed=3, programs=["sim"]) as car:
+        truths = car.collect(car.key("sim", "truth"), TRUTH.decode)
+        car.run_for(2)
+        sim = car.services["sim"]
+        step, stalled = sim.car.step, []
+
+        def stall_once(dt):
+            if not stalled:
+                stalled.append(True)
+                clock.sleep(1.5)                    # the sim's thread held up 1.5 s
+            return step(dt)
+        sim.car.step = stall_once
+        car.run_for(3)
+        assert stalled
+        behind_s = (car.clock.time_ns() - truths[-1]["t"]) / 1e9
+        assert 0 <= behind_s < 0.05, behind_s
