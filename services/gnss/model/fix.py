@@ -48,8 +48,9 @@ FIX = Schema("viena.gnss.fix/1", {
     "t_host": F.time,                   # host clock at the frame's last byte, UTC ns
     "latency_s": F.float,               # t_host - t
     "vel_latency_s": F.float,           # receiver's velocity latency (subtract from t)
-    "diff_age_s": F.optional(F.float),
+    "diff_age_s": F.optional(F.float),  # age of the differential corrections in use (s)
     "sol_age_s": F.optional(F.float),
+    "base_id": F.optional(F.str),       # the differential base station's id, as the receiver names it
     "time_status": F.optional(F.str),   # receiver's GPS time quality (NovAtel), by name
     # the position's sigmas as the receiver gives them, when not (only) along ECEF axes:
     "enu_sigma_m": F.optional(F.vec(3)),  # along East, North, Up
@@ -58,6 +59,28 @@ FIX = Schema("viena.gnss.fix/1", {
 })
 
 SOL_COMPUTED = "SOL_COMPUTED"
+
+#: What a position type says of the fix's precision, coarsest first: the classes a reader
+#: (the estimator's noise, the pilot's precision rule, the monitor) decides on. NovAtel's
+#: names (Table 47), which the NMEA path uses too (NMEA_QUALITY).
+SOLUTION_KINDS = ("none", "single", "sbas", "dgps", "float", "fixed")
+_KIND_OF_TYPE = {
+    "SINGLE": "single", "PROPAGATED": "single",
+    "WAAS": "sbas", "CDGPS": "sbas", "OMNISTAR": "sbas",
+    "PSRDIFF": "dgps",
+    "L1_FLOAT": "float", "IONOFREE_FLOAT": "float", "NARROW_FLOAT": "float", "OMNISTAR_HP": "float",
+    "OMNISTAR_XP": "float",
+    "L1_INT": "fixed", "WIDE_INT": "fixed", "NARROW_INT": "fixed", "RTK_DIRECT_INS": "fixed",
+    "FIXEDPOS": "fixed", "FIXEDHEIGHT": "fixed",
+}
+
+
+def solution_kind(pos_type: str | None) -> str:
+    """The precision class of a position type ("NARROW_INT" -> "fixed"); an unknown or
+    missing type is "single" (what a receiver without corrections computes), NONE "none"."""
+    if pos_type == "NONE":
+        return "none"
+    return _KIND_OF_TYPE.get(pos_type or "SINGLE", "single")
 
 
 class Fix(NamedTuple):
@@ -82,6 +105,17 @@ class Fix(NamedTuple):
     enu_sigma_m: tuple[float, float, float] | None = None
     #: satellites in the solution, when the source says (estimator's admission checks)
     sats_used: int | None = None
+    #: the position type by name (SINGLE, PSRDIFF, NARROW_INT, ...): `kind` classes it
+    pos_type: str = "SINGLE"
+    #: age of the differential corrections in the solution (s), when it has any
+    diff_age_s: float | None = None
+    #: the differential base station's id, when the receiver says
+    base_id: str | None = None
+
+    @property
+    def kind(self) -> str:
+        """The solution's precision class: one of SOLUTION_KINDS."""
+        return solution_kind(self.pos_type)
 
     @property
     def usable(self) -> bool:
@@ -101,16 +135,17 @@ class Fix(NamedTuple):
 #: the fields a Fix is read from; a source may leave out those with a default here
 #: (and the optional ones: no velocity), e.g. a receiver with no statuses beyond `valid`;
 #: the sigmas may come along ECEF axes, along ENU, or as horizontal and vertical
-_FIX_FIELDS = FIX.reader(*Fix._fields[:-2], "enu_sigma_m", "sigma_h_m", "sigma_v_m", "sats_used", defaults={
+_FIX_FIELDS = FIX.reader(*Fix._fields[:-5], "enu_sigma_m", "sigma_h_m", "sigma_v_m", "sats_used", "pos_type",
+                         "diff_age_s", "base_id", defaults={
     "unit": "gnss", "pos_status": SOL_COMPUTED, "vel_status": SOL_COMPUTED, "vel_type": "",
-    "vel_latency_s": 0.0, "ecef_sigma_m": None, "sats_used": None})
+    "vel_latency_s": 0.0, "ecef_sigma_m": None, "sats_used": None, "pos_type": "SINGLE"})
 
 
 def read_fix(sample) -> Fix:
     """The Fix in a decoded sample from any source; a FieldError (a SampleError) names
     the field that is missing or wrong."""
     (t, unit, valid, status, ecef, sigma, vel, vel_sigma, vel_status, vel_type, latency,
-     enu_sigma, sigma_h, sigma_v, sats) = _FIX_FIELDS(sample)
+     enu_sigma, sigma_h, sigma_v, sats, pos_type, diff_age, base_id) = _FIX_FIELDS(sample)
     if enu_sigma is None and (sigma_h is None) != (sigma_v is None):
         name = "sigma_v_m" if sigma_v is None else "sigma_h_m"
         raise FieldError(f"{FIX.name}: missing field {name!r} (sigma_h_m and sigma_v_m come "
@@ -122,7 +157,8 @@ def read_fix(sample) -> Fix:
                          f"sigma_h_m and sigma_v_m)", "ecef_sigma_m")
     return Fix(t, unit, valid, status, tuple(ecef), None if sigma is None else tuple(sigma),
                None if vel is None else tuple(vel), None if vel_sigma is None else tuple(vel_sigma),
-               vel_status, vel_type, latency, None if enu_sigma is None else tuple(enu_sigma), sats)
+               vel_status, vel_type, latency, None if enu_sigma is None else tuple(enu_sigma), sats,
+               pos_type, diff_age, base_id or None)
 
 
 def monitor_view(fix: dict) -> dict[str, str]:
@@ -199,7 +235,7 @@ def fix_from_bestxyz(msg: LogMessage, unit: str, seq: int) -> dict:
         "lat_deg": float(lat), "lon_deg": float(lon), "height_m": float(h),
         "sats_tracked": d.sats_tracked, "sats_used": d.sats_used,
         "vel_latency_s": float(d.vel_latency_s), "diff_age_s": float(d.diff_age_s),
-        "sol_age_s": float(d.sol_age_s),
+        "sol_age_s": float(d.sol_age_s), "base_id": d.station_id or None,
     }
     sample.update(_times(msg.header, msg.t_host_ns))
     return sample
@@ -221,7 +257,7 @@ def fix_from_bestpos(pos: LogMessage, vel: LogMessage | None, unit: str, seq: in
         "lat_deg": lat, "lon_deg": lon, "height_m": h,
         "sats_tracked": p.sats_tracked, "sats_used": p.sats_used,
         "diff_age_s": float(p.diff_age_s), "sol_age_s": float(p.sol_age_s),
-        "vel_sigma_mps": None,
+        "base_id": p.station_id or None, "vel_sigma_mps": None,
     }
     if vel is not None:
         v: BestVel = vel.data
