@@ -43,14 +43,18 @@ class Role:
     liveliness: bool = False          # may watch and query liveliness tokens (discovery)
 
 
-def _device(kind: str) -> Role:
-    return Role(f"the {kind} service of one unit: publishes on its own keys only",
-                publish=(f"{kind}/{{name}}/**",), token=(f"alive/{kind}/{{name}}",))
+def _device(kind: str, summary: str = "publishes on its own keys only", subscribe: tuple[str, ...] = ()) -> Role:
+    return Role(f"the {kind} service of one unit: {summary}", publish=(f"{kind}/{{name}}/**",),
+                subscribe=subscribe, token=(f"alive/{kind}/{{name}}",))
 
 
 ROLES: dict[str, Role] = {
-    "gnss": _device("gnss"),
+    "gnss": _device("gnss", "publishes on its own keys only; reads the corrections for its receiver",
+                    subscribe=("gnss/corrections",)),
     "imu": _device("imu"),
+    "ntrip": Role("viena-ntrip: the corrections from an NTRIP caster; reads the fixes for the GGA a "
+                  "caster may ask for",
+                  publish=("gnss/corrections", "ntrip/**"), subscribe=("gnss/*/fix",), token=("alive/ntrip",)),
     "steering": Role("the steering service: its state and health; answers the steering commands; reads "
                      "the car's speed from the estimator and the receivers",
                      publish=("steering/state", "steering/health"), serve=STEERING_COMMANDS,

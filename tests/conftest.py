@@ -159,6 +159,23 @@ def session(router):
     s.close()
 
 
+@pytest.fixture(scope="module")
+def zrouter():
+    """A `viena router` on a free port for a whole module (its services as processes);
+    yields its endpoint."""
+    procs = Processes()
+    yield start_router(procs)
+    procs.stop_all()
+
+
+@pytest.fixture(scope="module")
+def zsession(zrouter):
+    """A zenoh client session on the module's router."""
+    s = open_session(zrouter)
+    yield s
+    s.close()
+
+
 @pytest.fixture
 def clean_env(tmp_path, monkeypatch):
     """A private run directory for compose profiles."""

@@ -76,7 +76,7 @@ def test_editors_resolve_every_viena_import():
 
 
 # -- the rooms --------------------------------------------------------------------------------
-DEVICES = ("gnss", "imu", "steering")
+DEVICES = ("gnss", "imu", "ntrip", "steering")
 #: what each room of a device service must never import
 FORBIDDEN = {
     "driver": {"zenoh", "msgpack"},

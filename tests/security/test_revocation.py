@@ -249,10 +249,10 @@ def test_export_gives_the_pi_what_it_runs_with_and_no_private_key_of_anyone_else
     pi = KeyStore(tmp_path / "pi", "elettra")
     status, out, err = run_keys(capsys, trusted, "export", *PI, "-o", str(pi.dir))
     assert status == 0, err
-    clients_alone = ["alice", "bob", "observer", "pilot", "sim"]
+    clients_alone = ["alice", "bob", "ntrip", "observer", "pilot", "sim"]
     assert sorted(p.name for p in pi.dir.iterdir()) == sorted(
         ["ca.pem", "crl.pem", *(f"{n}.pem" for n in PI + clients_alone), *(f"{n}.key" for n in PI)])
-    assert "alice, bob, observer, pilot, sim by certificate alone" in out
+    assert "alice, bob, ntrip, observer, pilot, sim by certificate alone" in out
     assert pi.crl.read_bytes() == trusted.crl.read_bytes()
     for name in PI:
         assert pi.identity(name).name == name
