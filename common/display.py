@@ -14,6 +14,10 @@ from __future__ import annotations
 
 import math
 
+#: corrections older than this read as stale (red): the receiver is about to fall back to a
+#: coarser solution (the fixes' diff age, the NTRIP client's last message)
+CORRECTIONS_STALE_S = 10.0
+
 
 class Alert(str):
     """Text that asks to be noticed (the monitor shows it in red)."""

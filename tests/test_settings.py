@@ -32,7 +32,7 @@ def read(cls, toml: dict, *flags: str, unit: str | None = None):
 
 
 def test_every_service_is_found():
-    assert set(SERVICES) == {"estimator", "gnss", "imu", "pilot", "sim", "steering"}
+    assert set(SERVICES) == {"estimator", "gnss", "imu", "ntrip", "pilot", "sim", "steering"}
 
 
 def test_the_service_readmes_show_the_settings_as_declared():
@@ -71,7 +71,7 @@ def test_a_unit_table_overrides_the_service_table_and_a_flag_both():
 
 @pytest.mark.parametrize("cls, toml, message", [
     (GnssService, {"gnss": {"baudrat": 1}},
-     "f.toml [gnss]: unknown setting 'baudrat' (known: baudrate, command_timeout_s, dynamics,"),
+     "f.toml [gnss]: unknown setting 'baudrat' (known: baudrate, command_timeout_s, corrections, corrections_baudrate,"),
     (GnssService, {"gnss": {"gnss0": {"period_s": "fast"}}},
      "f.toml [gnss.gnss0]: setting 'period_s' must be float, got 'fast'"),
     (GnssService, {"gnss": {"logs": ["BESTXYZ", "GPGGA"]}},

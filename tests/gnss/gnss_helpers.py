@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -84,3 +85,19 @@ def start_twin(procs, *args: str) -> str:
     line = proc.stdout.readline().split()
     assert line and line[0] == "READY", f"twin did not start: {line}"
     return line[1]
+
+
+def health_until(session, car, predicate, timeout=15.0, unit: str = "gnss0"):
+    """A unit's health samples until one satisfies predicate; that one (or the last seen)."""
+    from vienatest import collect
+
+    from viena.common.health import HEALTH
+    end = time.monotonic() + timeout
+    last = None
+    while time.monotonic() < end:
+        got = collect(session, f"viena/{car}/gnss/{unit}/health", 1, timeout=2.0, decode=HEALTH.decode)
+        if got:
+            last = got[0]
+            if predicate(last):
+                return last
+    return last

@@ -125,7 +125,8 @@ def test_nmea_epoch_to_fix():
 @pytest.mark.parametrize("quality, status, kind", [
     (0, "INSUFFICIENT_OBS", "NONE"), (2, "SOL_COMPUTED", "PSRDIFF"),
     (4, "SOL_COMPUTED", "NARROW_INT"), (5, "SOL_COMPUTED", "NARROW_FLOAT"),
-    (6, "SOL_COMPUTED", "PROPAGATED"), (9, "INSUFFICIENT_OBS", "NONE"),
+    (6, "SOL_COMPUTED", "PROPAGATED"), (8, "INSUFFICIENT_OBS", "NONE"),
+    (9, "SOL_COMPUTED", "WAAS"),        # NovAtel's GPGGA (OEM4 vol. 2 §3.4.17)
 ])
 def test_nmea_quality_in_novatel_terms(quality, status, kind):
     fix = fix_from_nmea(nmea(quality=quality), "gps0", 1)

@@ -153,7 +153,7 @@ def test_every_command_round_trips_through_a_frame(cmd):
 def test_command_set_is_complete():
     names = {MessageId(i).name for i in COMMANDS}
     assert names == {"LOG", "UNLOG", "UNLOGALL", "COM", "DYNAMICS", "SBASCONTROL", "RESET",
-                     "SAVECONFIG"}
+                     "SAVECONFIG", "INTERFACEMODE", "DGPSTIMEOUT", "PSRDIFFSOURCE", "RTKSOURCE"}
 
 
 def test_sbascontrol_has_a_16_byte_body_and_enable_is_zero():

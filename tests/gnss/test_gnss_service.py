@@ -6,39 +6,18 @@ import socket
 import subprocess
 import sys
 import threading
-import time
 
 import numpy as np
 import pytest
-from gnss_helpers import ORIGIN_ECEF, still
-from vienatest import Processes, collect, free_port, wait_for_port
+from gnss_helpers import ORIGIN_ECEF, health_until, still
+from vienatest import collect
 
-from viena.common.health import HEALTH
 from viena.common.twin.serial_port import SerialEndpoint, TwinWrapper
 from viena.services.gnss.model.fix import FIX
 from viena.services.gnss.simulator import NmeaTwin, NovatelTwin
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(90)]  # the service as a process
 
-
-@pytest.fixture(scope="module")
-def zrouter():
-    procs = Processes()
-    port = free_port()
-    procs.python("-m", "viena.router", "--listen", f"tcp/127.0.0.1:{port}", "--log-level", "WARNING")
-    wait_for_port(port)
-    yield f"tcp/127.0.0.1:{port}"
-    procs.stop_all()
-
-
-@pytest.fixture(scope="module")
-def zsession(zrouter):
-    import zenoh
-
-    from viena.common.config import load_zenoh_config
-    s = zenoh.open(load_zenoh_config(mode="client", connect=[zrouter]))
-    yield s
-    s.close()
 
 
 def gnss(procs, router, car, url, *extra):
@@ -49,18 +28,6 @@ def gnss(procs, router, car, url, *extra):
 def fixes(session, car, n, timeout=15.0):
     return collect(session, f"viena/{car}/gnss/gnss0/fix", n, timeout=timeout, decode=FIX.decode)
 
-
-def health_until(session, car, predicate, timeout=15.0):
-    """Health samples until one satisfies predicate; that one (or the last seen)."""
-    end = time.monotonic() + timeout
-    last = None
-    while time.monotonic() < end:
-        got = collect(session, f"viena/{car}/gnss/gnss0/health", 1, timeout=2.0, decode=HEALTH.decode)
-        if got:
-            last = got[0]
-            if predicate(last):
-                return last
-    return last
 
 
 def near_origin(fix) -> bool:

@@ -59,6 +59,8 @@ class NmeaFix:
     speed_mps: float | None = None
     course_deg: float | None = None
     talker: str = "GP"              # the talker whose GGA gave the position
+    diff_age_s: float | None = None  # GGA: age of the differential corrections (s), if any
+    station_id: str | None = None   # GGA: the differential base station's id, if any
     sentences: tuple[str, ...] = ()  # the sentence types the epoch held (GGA, RMC, ...)
     talkers: tuple[str, ...] = ()    # who spoke in it (GN, GP, GL, GA, GB ...)
     date_problem: str | None = None  # why the date cannot be trusted (the fix is not valid)
@@ -226,6 +228,7 @@ class NmeaDecoder:
             hdop=v.get("hdop"), pdop=v.get("pdop"), vdop=v.get("vdop"),
             fix_mode=v.get("fix_mode"), rmc_valid=v.get("rmc_valid"),
             speed_mps=v.get("speed"), course_deg=v.get("course"), talker=talker,
+            diff_age_s=gga.get("diff_age"), station_id=gga.get("station_id"),
             sentences=tuple(sorted(epoch.types)), talkers=tuple(sorted(epoch.talkers)),
             date_problem=problem)]
 
@@ -307,7 +310,10 @@ def _latlon(msg) -> dict:
 def _gga(msg):
     values = {"quality": _num(msg.gps_qual, int) or 0, "sats_used": _num(msg.num_sats, int),
               "hdop": _num(msg.horizontal_dil), "alt": _num(msg.altitude),
-              "geoid_sep": _num(msg.geo_sep)}
+              "geoid_sep": _num(msg.geo_sep),
+              # the differential part (fields 13, 14), empty or absent without corrections
+              "diff_age": _num(getattr(msg, "age_gps_data", None)),
+              "station_id": (getattr(msg, "ref_station_id", None) or "").strip() or None}
     values.update(_latlon(msg))
     return values, _time(msg.timestamp)
 

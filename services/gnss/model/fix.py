@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 import pymap3d
 
-from viena.common.display import fmt_num, norm, number
+from viena.common.display import CORRECTIONS_STALE_S, Alert, fmt_num, norm, number
 from viena.common.geodesy import geodetic_of_ecef
 from viena.common.schema import F, FieldError, Schema
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns, utc_to_gps
@@ -73,6 +73,15 @@ _KIND_OF_TYPE = {
     "L1_INT": "fixed", "WIDE_INT": "fixed", "NARROW_INT": "fixed", "RTK_DIRECT_INS": "fixed",
     "FIXEDPOS": "fixed", "FIXEDHEIGHT": "fixed",
 }
+
+
+_RANK_OF_KIND = {kind: i for i, kind in enumerate(SOLUTION_KINDS)}
+
+
+def solution_rank(kind: str | None) -> int:
+    """A solution kind's place in SOLUTION_KINDS, higher is more precise (0 none ... 5
+    fixed); -1 for an unknown kind, below every known one."""
+    return -1 if kind is None else _RANK_OF_KIND.get(kind, -1)
 
 
 def solution_kind(pos_type: str | None) -> str:
@@ -161,14 +170,32 @@ def read_fix(sample) -> Fix:
                pos_type, diff_age, base_id or None)
 
 
+def _corrections_cell(fix: dict) -> str:
+    """The differential part of a fix: '1.4 s, base 2050'; '-' when it has none (a
+    single-point fix's age is 0 or absent)."""
+    age = number(fix.get("diff_age_s"))
+    base = fix.get("base_id")
+    pos_type = fix.get("pos_type")
+    if not isinstance(pos_type, str) or solution_kind(pos_type) in ("none", "single"):
+        return "-"
+    shown = "-" if age is None else f"{age:.1f} s"
+    shown = f"{shown}, base {base}" if isinstance(base, str) and base else shown
+    return Alert(f"{shown} STALE") if age is not None and age > CORRECTIONS_STALE_S else shown
+
+
 def monitor_view(fix: dict) -> dict[str, str]:
     """How the monitor shows a fix (any map: what came on a fix key)."""
     sigma = norm(fix.get("ecef_sigma_m"), 3)
-    status = "/".join(str(fix[k]) for k in ("pos_status", "pos_type") if fix.get(k) is not None)
     latency_s = number(fix.get("latency_s"))
+    pos_type, pos_status = fix.get("pos_type"), fix.get("pos_status")
+    # "NARROW_INT (fixed)": the type and what it means; the status only when it is not a solution
+    solution = f"{pos_type} ({solution_kind(pos_type)})" if isinstance(pos_type, str) else "-"
+    if pos_status is not None and pos_status != SOL_COMPUTED:
+        solution = f"{pos_status}/{solution}"
     return {
         "fix": ("valid" if fix.get("valid") is True else "NO FIX" if fix.get("valid") is False else "?"),
-        "status": status or "-",
+        "solution": solution,
+        "corrections": _corrections_cell(fix),
         "sats": f"{fmt_num(fix.get('sats_used'))}/{fmt_num(fix.get('sats_tracked'))}",
         "sigma": "-" if sigma is None else f"{sigma:.2f} m",
         "position": ("-" if number(fix.get("lat_deg")) is None else
@@ -327,6 +354,7 @@ NMEA_QUALITY = {
     5: ("SOL_COMPUTED", "NARROW_FLOAT"),
     6: ("SOL_COMPUTED", "PROPAGATED"),
     7: ("SOL_COMPUTED", "FIXEDPOS"),
+    9: ("SOL_COMPUTED", "WAAS"),        # NovAtel's GPGGA: "9 = WAAS" (OEM4 vol. 2 §3.4.17)
 }
 #: Vertical DOP assumed when GSA is missing, relative to HDOP (typical geometry).
 VDOP_PER_HDOP = 1.6
@@ -354,7 +382,8 @@ def fix_from_nmea(fix: NmeaFix, unit: str, seq: int, uere_m: float = 3.0) -> dic
         "lat_deg": lat, "lon_deg": lon, "height_m": h,
         "sats_tracked": fix.sats_in_view if fix.sats_in_view is not None else (fix.sats_used or 0),
         "sats_used": fix.sats_used or 0,
-        "vel_latency_s": 0.0, "diff_age_s": None, "sol_age_s": None, "time_status": None,
+        "vel_latency_s": 0.0, "diff_age_s": fix.diff_age_s, "sol_age_s": None, "time_status": None,
+        "base_id": fix.station_id,
     }
     if fix.speed_mps is not None and fix.rmc_valid is not False and status == "SOL_COMPUTED":
         course = math.radians(fix.course_deg or 0.0)

@@ -14,12 +14,15 @@ from typing import ClassVar
 
 from .enums import (
     ComPort,
+    DgpsType,
     Dynamics,
     Handshake,
+    InterfaceMode,
     MessageId,
     Parity,
     Port,
     ResponseId,
+    Responses,
     SbasKeyword,
     SbasSystem,
     SbasTestMode,
@@ -196,9 +199,101 @@ class SaveConfig(Command):
     _BODY = struct.Struct("<")
 
 
+@dataclass(frozen=True)
+class InterfaceModeCommand(Command):
+    """INTERFACEMODE: what a port accepts and generates (§2.6.28, Table 28). A port whose
+    rxtype is not NOVATEL takes no more commands (on the port the commands go through it
+    must be the last one); a break puts it back to NOVATEL NOVATEL."""
+
+    MESSAGE_ID = MessageId.INTERFACEMODE
+    _BODY = struct.Struct("<LLLL")
+    _ENUMS = {"port": ComPort, "rxtype": InterfaceMode, "txtype": InterfaceMode, "responses": Responses}
+
+    port: int = ComPort.THISPORT
+    rxtype: int = InterfaceMode.NOVATEL
+    txtype: int = InterfaceMode.NOVATEL
+    responses: int = Responses.ON
+
+
+@dataclass(frozen=True)
+class DgpsTimeout(Command):
+    """DGPSTIMEOUT: the oldest pseudorange correction used, 2-1000 s (§2.6.16); RTK
+    corrections time out after 60 s whatever this says."""
+
+    MESSAGE_ID = MessageId.DGPSTIMEOUT
+    _BODY = struct.Struct("<L")
+
+    delay: int = 300
+
+
+#: The ID field of PSRDIFFSOURCE and RTKSOURCE: Char[5] plus 3 bytes of padding (§2.6.40).
+SOURCE_ID_BYTES = 8
+
+
+@dataclass(frozen=True)
+class _SourceCommand(Command):
+    """A correction source: type (Table 31) and base station ID ("ANY", or a number or name
+    in the type's range, see `source_id_error`)."""
+
+    _BODY = struct.Struct(f"<L{SOURCE_ID_BYTES}s")
+    _ENUMS = {"type": DgpsType}
+
+    type: int = DgpsType.AUTO
+    id: str = "ANY"
+
+    def body(self) -> bytes:
+        return self._BODY.pack(self.type, self.id.encode("ascii", "replace")[:5])
+
+    @classmethod
+    def from_body(cls, body: bytes) -> Command:
+        if len(body) != cls._BODY.size:
+            raise BodyError(f"{MessageId(cls.MESSAGE_ID).name} body is {len(body)} bytes, "
+                            f"expected {cls._BODY.size}")
+        kind, raw = cls._BODY.unpack(body)
+        return cls(DgpsType(kind), raw[:5].split(b"\0", 1)[0].decode("ascii", "replace"))
+
+
+@dataclass(frozen=True)
+class PsrDiffSource(_SourceCommand):
+    """PSRDIFFSOURCE: which base's pseudorange corrections to use (§2.6.40). Every type
+    falls back to SBAS when SBAS is enabled; CMR is not a pseudorange source."""
+
+    MESSAGE_ID = MessageId.PSRDIFFSOURCE
+
+
+@dataclass(frozen=True)
+class RtkSource(_SourceCommand):
+    """RTKSOURCE: which base's RTK corrections to use (§2.6.47)."""
+
+    MESSAGE_ID = MessageId.RTKSOURCE
+
+
+#: The base station IDs each type takes (Table 31), besides "ANY".
+_NUMERIC_ID_MAX = {DgpsType.RTCM: 1023, DgpsType.CMR: 31, DgpsType.RTCMV3: 4095}
+
+
+def source_id_error(kind: DgpsType | int, source_id: str) -> str:
+    """Why `source_id` is not a base station ID of `kind` by Table 31 ("" when it is): RTCM
+    0-1023, RTCMV3 0-4095, CMR 0-31, RTCA four letters or digits; "ANY" for every type."""
+    if source_id == "ANY":
+        return ""
+    kind = DgpsType(kind)
+    if kind in _NUMERIC_ID_MAX:
+        top = _NUMERIC_ID_MAX[kind]
+        if source_id.isdigit() and int(source_id) <= top:
+            return ""
+        return f"{kind.name} base ID is 0-{top} or ANY, not {source_id!r}"
+    if kind == DgpsType.RTCA:
+        if len(source_id) == 4 and source_id.isascii() and source_id.isalnum():
+            return ""
+        return f"RTCA base ID is four letters or digits or ANY, not {source_id!r}"
+    return ""                       # the other types ignore the ID
+
+
 COMMANDS: dict[int, type[Command]] = {
     c.MESSAGE_ID: c for c in (Log, Unlog, Unlogall, Com, DynamicsCommand, SbasControl,
-                              Reset, SaveConfig)
+                              Reset, SaveConfig, InterfaceModeCommand, DgpsTimeout,
+                              PsrDiffSource, RtkSource)
 }
 
 

@@ -35,16 +35,21 @@ class MessageId(OpenEnum):
     """Message IDs of the commands and logs this driver speaks (Tables 10 and 44)."""
 
     LOG = 1
+    INTERFACEMODE = 3
     COM = 4
     RESET = 18
     SAVECONFIG = 19
     UNLOG = 36
+    VERSION = 37
     UNLOGALL = 38
     BESTPOS = 42
     BESTVEL = 99
+    DGPSTIMEOUT = 127
     RXCONFIG = 128
     BESTXYZ = 241
     DYNAMICS = 258
+    PSRDIFFSOURCE = 493
+    RTKSOURCE = 494
     SBASCONTROL = 652
 
 
@@ -151,6 +156,65 @@ class SbasTestMode(OpenEnum):
     NONE = 0
     ZEROTOTWO = 1
     IGNOREZERO = 2
+
+
+class InterfaceMode(OpenEnum):
+    """Serial port interface modes, what a port accepts (rxtype) or generates (txtype)
+    (Table 28). A port whose rxtype is not NOVATEL (or NOVATELBINARY) takes no commands; a
+    break puts it back to NOVATEL NOVATEL."""
+
+    NONE = 0
+    NOVATEL = 1
+    RTCM = 2            # RTCM 2.x
+    RTCA = 3
+    CMR = 4
+    IMU = 7
+    RTCMNOCR = 8        # RTCM without the CR/LF appended (input: same as RTCM)
+    CDGPS = 9
+    TCOM1 = 10
+    TCOM2 = 11
+    TCOM3 = 12
+    TAUX = 13
+    RTCMV3 = 14
+    NOVATELBINARY = 15
+
+
+class Responses(OpenEnum):
+    """INTERFACEMODE's responses field (§2.6.28): whether the port answers commands."""
+
+    OFF = 0
+    ON = 1
+
+
+class DgpsType(OpenEnum):
+    """The correction source of PSRDIFFSOURCE and RTKSOURCE (Table 31). CMR is for
+    RTKSOURCE only; OMNISTAR, CDGPS, SBAS, AUTO and NONE ignore the ID."""
+
+    RTCM = 0
+    RTCA = 1
+    CMR = 2
+    OMNISTAR = 3
+    CDGPS = 4
+    SBAS = 5
+    AUTO = 10
+    NONE = 11
+    RTCMV3 = 13
+
+
+class ComponentType(OpenEnum):
+    """VERSION log component types (Table 88)."""
+
+    UNKNOWN = 0
+    GPSCARD = 1
+    CONTROLLER = 2
+    ENCLOSURE = 3
+    IBOARD = 4
+    IMUCARD = 7
+    DB_HEIGHTMODEL = 0x3A7A0000
+    DB_USERAPP = 0x3A7A0001
+    DB_OMNISTARDSP = 0x3A7A0002
+    DB_OMNISTARXILINX = 0x3A7A0004
+    DB_USERAPPAUTO = 0x3A7A0005
 
 
 class TimeStatus(OpenEnum):

@@ -1,5 +1,6 @@
 """OEM4 logs the car uses: BESTXYZ (241), BESTPOS (42), BESTVEL (99), every field of
-vol. 2 §3.4.3-3.4.6, statuses and types as named enums (docs/sensors.md#logs-used).
+vol. 2 §3.4.3-3.4.6, statuses and types as named enums (docs/sensors.md#logs-used); and
+VERSION (37, §3.4.94), asked once at start-up for the model and firmware.
 
 A decoded log keeps its header, so the receiver's GPS time (week + ms) travels with the
 data, and ``utc_ns`` gives the same instant in UTC.
@@ -13,13 +14,14 @@ from typing import ClassVar
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns
 
 from .commands import BodyError
-from .enums import Datum, MessageId, PositionType, SolutionStatus
+from .enums import ComponentType, Datum, MessageId, PositionType, SolutionStatus
 from .framing import Frame, Header, encode_frame
 
 Vec3 = tuple[float, float, float]
 
 
 def _station(raw: bytes) -> str:
+    """A Char[n] field: the text up to its first NUL."""
     return raw.split(b"\0", 1)[0].decode("ascii", "replace")
 
 
@@ -148,6 +150,68 @@ class BestVel:
     def from_body(cls, body: bytes) -> BestVel:
         v = _unpack(cls, body)
         return cls(SolutionStatus.of(v[0]), PositionType.of(v[1]), *v[2:])
+
+
+@dataclass(frozen=True)
+class Component:
+    """One component of a VERSION log (§3.4.94, 108 bytes; formats in Table 89)."""
+
+    _BODY: ClassVar[struct.Struct] = struct.Struct("<L16s16s16s16s16s12s12s")
+
+    type: ComponentType = ComponentType.GPSCARD
+    model: str = ""                 # e.g. "RT2WA": the enabled model (vol. 1 Table 3)
+    psn: str = ""                   # product serial number
+    hw_version: str = ""            # P-RS-CCC, e.g. "OEM4g2-2.00-X2T"
+    sw_version: str = ""            # VV.RRR[Xxxx], e.g. "2.200A1"
+    boot_version: str = ""
+    comp_date: str = ""             # YYYY/MM/DD (the example's "2004/Feb/10")
+    comp_time: str = ""             # HH:MM:SS
+
+    def pack(self) -> bytes:
+        sizes = (16, 16, 16, 16, 16, 12, 12)
+        texts = (self.model, self.psn, self.hw_version, self.sw_version, self.boot_version,
+                 self.comp_date, self.comp_time)
+        return self._BODY.pack(self.type, *(t.encode("ascii", "replace")[:n] for t, n in zip(texts, sizes)))
+
+    @classmethod
+    def unpack_from(cls, body: bytes, offset: int) -> Component:
+        v = cls._BODY.unpack_from(body, offset)
+        return cls(ComponentType.of(v[0]), *(_station(raw) for raw in v[1:]))
+
+
+@dataclass(frozen=True)
+class Version:
+    """VERSION: the receiver's components (§3.4.94): # comp, then 108 bytes each. A
+    standard receiver has one, its GPSCARD."""
+
+    MESSAGE_ID: ClassVar[int] = MessageId.VERSION
+    _COUNT: ClassVar[struct.Struct] = struct.Struct("<l")
+
+    components: tuple[Component, ...] = ()
+
+    @property
+    def card(self) -> Component | None:
+        """The GPSCARD component (the receiver itself), or None."""
+        return next((c for c in self.components if c.type == ComponentType.GPSCARD), None)
+
+    def body(self) -> bytes:
+        return self._COUNT.pack(len(self.components)) + b"".join(c.pack() for c in self.components)
+
+    @classmethod
+    def from_body(cls, body: bytes) -> Version:
+        size = Component._BODY.size
+        if len(body) < cls._COUNT.size:
+            raise BodyError(f"VERSION body is {len(body)} bytes, expected at least 4")
+        count, = cls._COUNT.unpack_from(body)
+        if count < 0 or len(body) != cls._COUNT.size + count * size:
+            raise BodyError(f"VERSION body is {len(body)} bytes, expected {cls._COUNT.size} + "
+                            f"{size} x {count} components")
+        return cls(tuple(Component.unpack_from(body, cls._COUNT.size + i * size) for i in range(count)))
+
+
+def decode_version(frame: Frame) -> Version:
+    """The VERSION log a frame carries; BodyError if its body is not one."""
+    return Version.from_body(frame.body)
 
 
 LOGS: dict[int, type[BestXyz] | type[BestPos] | type[BestVel]] = {c.MESSAGE_ID: c for c in (BestXyz, BestPos, BestVel)}

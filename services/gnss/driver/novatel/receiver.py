@@ -16,6 +16,14 @@ With ``StartupConfig(read_config=True)`` the start-up ends by asking for RXCONFI
 the receiver lists every setting it holds, enumerations by name, and ``config`` keeps the
 latest of each (``sbas()`` is SBASCONTROL's), so what the receiver does can be checked
 against what was asked in the receiver's own words.
+
+With ``ask_version`` it asks for VERSION once (``version``, ``ability``: the model, firmware
+and the correction formats they take, corrections.py); with a ``corrections`` format it then
+configures the receiver to take them (DGPSTIMEOUT, RTKSOURCE, PSRDIFFSOURCE, INTERFACEMODE),
+or refuses a format the receiver cannot take (``corrections_refused`` says why, and the
+receiver keeps its single-point solution). On the logs' own port INTERFACEMODE is the very
+last command: the port then reads only corrections, until a break (the next start-up's)
+puts it back to NOVATEL NOVATEL. ``write_corrections`` sends the bytes.
 """
 from __future__ import annotations
 
@@ -37,28 +45,37 @@ from .commands import (
     Command,
     CommandError,
     CommandTimeout,
+    DgpsTimeout,
     DynamicsCommand,
+    InterfaceModeCommand,
     Log,
+    PsrDiffSource,
     Reset,
     Response,
+    RtkSource,
     SaveConfig,
     SbasControl,
     Unlog,
     Unlogall,
     sbas_keyword_value,
 )
+from .corrections import ReceiverAbility, ability_of_version
 from .enums import (
+    ComPort,
+    DgpsType,
     Dynamics,
+    InterfaceMode,
     MessageFormat,
     MessageId,
     Port,
+    Responses,
     SbasKeyword,
     SbasSystem,
     SbasTestMode,
     Trigger,
 )
 from .framing import MAX_BODY_LENGTH, AsciiFrame, DecoderStats, Frame, FrameDecoder
-from .logs import LogMessage, decode_log
+from .logs import LogMessage, Version, decode_log
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +98,20 @@ class LogRequest:
 
 
 @dataclass(frozen=True)
+class CorrectionsSetup:
+    """How the receiver is to take differential corrections (start-up's last part)."""
+
+    format: str = ""                # "" none; RTCMV3, RTCM, RTCA, CMR (INTERFACEMODE's names)
+    port: ComPort | None = None     # None: the logs' own port; else the receiver's port they go to
+    baud: int = 0                   # that other port's rate, set by COM (0: leave it)
+    dgps_timeout_s: int = 60        # DGPSTIMEOUT, 2-1000 s (RTK's is 60 s, fixed)
+    source_id: str = "ANY"          # the base station to take them from (Table 31's IDs)
+    check: bool = True              # refuse a format the VERSION's model and firmware do not take
+    #: on the logs' own port, the wait for INTERFACEMODE's answer (it queues behind RXCONFIG)
+    last_answer_s: float = 3.0
+
+
+@dataclass(frozen=True)
 class StartupConfig:
     """The car's start-up sequence; every field is a setting of the service."""
 
@@ -96,6 +127,9 @@ class StartupConfig:
     sbas_enable_value: int = 0      # what the firmware reads as ENABLE (manual: 0; later: 1)
     logs: tuple[LogRequest, ...] = (LogRequest(),)
     read_config: bool = False       # end with LOG RXCONFIGA ONCE: the settings by name
+    ask_version: bool = False       # LOG VERSION ONCE after the logs: model and firmware
+    version_timeout_s: float = 1.0  # how long the VERSION log may take after its LOG's answer
+    corrections: CorrectionsSetup = CorrectionsSetup()
 
 
 @dataclass
@@ -152,6 +186,19 @@ class NovatelReceiver:
         self.config: dict[str, ConfigEntry] = {}
         #: why the RXCONFIG request of the last start-up failed ("" if it did not)
         self.config_request_error = ""
+        #: the receiver's VERSION log (kept across start-ups: the same receiver), what its
+        #: model and firmware take, and why the last request for it failed
+        self.version: Version | None = None
+        self.ability: ReceiverAbility | None = None
+        self.version_error = ""
+        self._version_event = clock.Event()
+        #: the corrections format the last start-up configured ("" none) ...
+        self.corrections_format = ""
+        #: ... or why it refused the one asked for ("" if it did not): "model 3151R firmware ..."
+        self.corrections_refused = ""
+        #: the logs' port's INTERFACEMODE went unanswered: taken as switched (firmware may
+        #: switch before it answers), not known to be; a differential fix confirms it
+        self.corrections_unconfirmed = False
 
     # -- port ------------------------------------------------------------------------
     @property
@@ -163,6 +210,8 @@ class NovatelReceiver:
         self._decoder.reset()
         self.config = {}              # what another connection read may no longer hold
         self.config_request_error = ""
+        self.corrections_format = ""  # a new connection's port starts NOVATEL NOVATEL
+        self.corrections_unconfirmed = False
         self._link.open(baudrate)
         self._reader.start()
 
@@ -277,8 +326,97 @@ class NovatelReceiver:
                              config.sbas_testmode, config.sbas_enable_value)
         for req in config.logs:
             self.log(req.message, req.trigger, req.period, req.offset, req.hold)
+        self.corrections_format, self.corrections_refused = "", ""
+        self.corrections_unconfirmed = False
+        if config.ask_version or config.corrections.format:
+            self.request_version(config.version_timeout_s)
+        same_port = False
+        if config.corrections.format:
+            same_port = self._configure_corrections(config.corrections)
         if config.read_config:
             self._request_config()
+        if same_port:
+            self._switch_this_port(config.corrections)
+
+    def request_version(self, timeout_s: float = 1.0) -> Version | None:
+        """LOG VERSION ONCE and wait for it: `version` and `ability` (what its model and
+        firmware take). A receiver that refuses or does not send it is still a working
+        receiver: `version_error` says why, and the last VERSION read is kept."""
+        self._version_event.clear()
+        try:
+            self.log(MessageId.VERSION, Trigger.ONCE)
+        except (CommandError, CommandTimeout) as exc:
+            self.version_error = str(exc)
+            return None
+        if not self._version_event.wait(timeout_s):
+            self.version_error = f"no VERSION log within {timeout_s:.1f} s of its LOG's answer"
+            return None
+        self.version_error = ""
+        return self.version
+
+    def _configure_corrections(self, setup: CorrectionsSetup) -> bool:
+        """Everything the receiver needs to take `setup.format` but the logs' port's own
+        INTERFACEMODE; True when that is still to be sent (the caller sends it last). A
+        format the receiver cannot take, or a command it refuses, leaves corrections off
+        (`corrections_refused` says why) and the receiver as it was: single-point."""
+        fmt = setup.format
+        refusal = self._refusal(setup)
+        if refusal:
+            self.corrections_refused = refusal
+            return False
+        kind = DgpsType[fmt]
+        rtk = self.ability is None or bool(self.ability.rtk)       # unchecked: try RTK too
+        commands: list[Command] = [DgpsTimeout(setup.dgps_timeout_s)]
+        if rtk:
+            commands.append(RtkSource(kind, setup.source_id))
+        if fmt != "CMR":                                            # CMR is RTK only (Table 31)
+            commands.append(PsrDiffSource(kind, setup.source_id))
+        if setup.port is not None:
+            if setup.baud:
+                commands.append(Com(port=setup.port, baud=setup.baud))
+            commands.append(InterfaceModeCommand(setup.port, InterfaceMode[fmt], InterfaceMode.NONE,
+                                                 Responses.OFF))
+        for cmd in commands:
+            try:
+                self.command(cmd)
+            except (CommandError, CommandTimeout) as exc:
+                self.corrections_refused = str(exc)
+                return False
+        if setup.port is not None:
+            self.corrections_format = fmt
+            return False
+        return True
+
+    def _refusal(self, setup: CorrectionsSetup) -> str:
+        if not setup.check:
+            return ""
+        if self.ability is None:
+            return (f"the receiver did not say its model and firmware ({self.version_error or 'no VERSION'}); "
+                    f"corrections_check = false writes them anyway")
+        return self.ability.refusal(setup.format)
+
+    def _switch_this_port(self, setup: CorrectionsSetup) -> None:
+        """INTERFACEMODE THISPORT <format> NOVATEL ON: the logs keep coming, the port takes
+        only corrections from now on. Its answer queues behind RXCONFIG's kilobytes, and a
+        receiver that switches before answering is switched all the same: without an answer
+        the port is taken as switched, `corrections_unconfirmed` (until a differential fix
+        says the receiver uses them)."""
+        cmd = InterfaceModeCommand(ComPort.THISPORT, InterfaceMode[setup.format], InterfaceMode.NOVATEL,
+                                   Responses.ON)
+        try:
+            self.command(cmd, timeout=max(self.command_timeout, setup.last_answer_s))
+        except CommandTimeout:
+            log.info("%s: no answer to INTERFACEMODE %s, taken as switched (unconfirmed)", self.url, setup.format)
+            self.corrections_unconfirmed = True
+        except CommandError as exc:
+            self.corrections_refused = str(exc)
+            return
+        self.corrections_format = setup.format
+
+    def write_corrections(self, data: bytes) -> None:
+        """Send correction bytes on this port (whole frames: the link's write lock keeps a
+        command's frame out of them); SerialException or OSError when the port is gone."""
+        self._link.write(data)
 
     def _request_config(self) -> None:
         """LOG RXCONFIGA ONCE: the receiver's settings arrive as ASCII logs (into `config`).
@@ -364,6 +502,9 @@ class NovatelReceiver:
             log.info("%s: response to %s nobody waited for: %s", self.url,
                      MessageId(frame.header.message_id).name, response.text)
             return
+        if frame.header.message_id == MessageId.VERSION:
+            self._on_version(frame)
+            return
         try:
             message = decode_log(frame)
         except BodyError as exc:
@@ -381,6 +522,16 @@ class NovatelReceiver:
             self._logs.put_nowait(message)
         except clock.Full:
             stats.dropped_logs += 1
+
+    def _on_version(self, frame: Frame) -> None:
+        try:
+            version = Version.from_body(frame.body)
+        except BodyError as exc:
+            self.stats.body_errors += 1
+            log.warning("%s: %s", self.url, exc)
+            return
+        self.version, self.ability = version, ability_of_version(version)
+        self._version_event.set()
 
     def _sync_decoder_stats(self) -> None:
         d = self._decoder.stats
