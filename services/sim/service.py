@@ -72,11 +72,15 @@ class SimService(Service):
         dt = 1.0 / self.settings.rate_hz
         self.car.start_clock(clock.time_ns() - int(dt * 1e9))   # the first step ends now
         next_t = clock.monotonic()
+        steps, per_second = 0, max(1, round(self.settings.rate_hz))
         while not self.stopping.is_set():
             truth = self.car.step(dt)
             if self._truth_pub.put(truth_sample(truth)):
                 self.health.count("truth")
                 self.health.mark_sample()
+            steps += 1
+            if steps % per_second == 0:
+                self._device_figures()
             next_t += dt
             delay = next_t - clock.monotonic()
             if delay > 0:
@@ -93,6 +97,15 @@ class SimService(Service):
                     self.car.step(dt)
                 next_t += missed * dt
         self.health.set("position_enu_m", [round(v, 2) for v in self.car.truth().enu_m])
+
+
+    def _device_figures(self) -> None:
+        """What a twin says of itself (a receiver: the corrections it read, their age at
+        the read), into the sim's health under the device's name, once a second."""
+        for name, device in zip(self.settings.devices, self.devices):
+            figures = device.health() if hasattr(device, "health") else None
+            if figures:
+                self.health.set(name, figures)
 
 
 def main(argv=None) -> int:

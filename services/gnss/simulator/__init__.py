@@ -8,12 +8,19 @@ The sim builds them from its settings (``[sim.<name>]`` tables, see ``TWIN_SETTI
     port = 0                         # TCP port (0 = any free one)
     lever_arm_m = [-0.4, 1.0, 1.5]   # antenna in the body frame (x right, y forward, z up)
     replay = ""                      # "" live from truth; "drive" = the 2016 drive; or a CSV
+    com2_port = 5011                 # NovAtel: serve its COM2 too (corrections beside COM1); -1: not
+    model = "RT2WA"                  # NovAtel: what VERSION says; RT2... fixes, RT20... floats on L1,
+    firmware = "2.310"               # others take pseudorange corrections only (rtk.py)
 
 All live twins of one simulated car share one sky (`CommonErrors`: satellite clock, orbit
 and atmosphere errors), drawn from the sim's seed; each keeps its own multipath, noise and
 satellite selection. Their errors are a standalone receiver's (errors.py, profile
 "standalone": steps when the satellites change, multipath bursts, heavy tails), not the
 estimator's own model.
+
+A NovAtel twin takes RTCM 3 corrections on a port set to INTERFACEMODE RTCMV3 (its COM1,
+or its COM2 when ``com2_port`` serves it) and moves through the differential solution
+types as an OEM4 does (rtk.py: PSRDIFF, float, fixed; differential.py: their errors).
 """
 from __future__ import annotations
 
@@ -49,6 +56,9 @@ TWIN_SETTINGS = {
     "shared_sky": True,              # the car's sky: its receivers share clock, orbit, atmosphere
     "sbas_enable_value": 0,          # NovAtel only: the binary SBASCONTROL keyword its firmware
                                      # reads as ENABLE (OEM4 2.310 manual: 0; later firmware: 1)
+    "com2_port": -1,                 # NovAtel only: TCP port of its COM2 (0 = any free one); -1: none
+    "model": "RT2WA",                # NovAtel only: the model VERSION says (RT2... RT-2, RT20... RT-20)
+    "firmware": "2.310",             # NovAtel only: the firmware VERSION says
 }
 
 #: one sky per simulated car
@@ -92,14 +102,37 @@ def _common(name: str, table: dict, car, service) -> tuple[dict, dict]:
     return s, kwargs
 
 
-def make_novatel_device(name: str, table: dict, car, service) -> SerialEndpoint:
-    """Factory for the sim (kind = "novatel")."""
+class NovatelDevice:
+    """A NovAtel twin served on its ports: ``url`` is COM1's (commands and logs), ``urls``
+    names every port served (COM2 for corrections when configured)."""
+
+    def __init__(self, twin: NovatelTwin, endpoints: dict):
+        self.twin = twin
+        self.endpoints = endpoints
+        self.url = endpoints["COM1"].url
+        self.urls = {port: e.url for port, e in endpoints.items()}
+
+    def health(self) -> dict:
+        """What corrections came to at this receiver (NovatelTwin.corrections_health)."""
+        return self.twin.corrections_health()
+
+    def stop(self) -> None:
+        for e in self.endpoints.values():
+            e.stop()
+
+
+def make_novatel_device(name: str, table: dict, car, service) -> NovatelDevice:
+    """Factory for the sim (kind = "novatel"): COM1 as ``name``, COM2 as ``name.com2``."""
     s, kwargs = _common(name, table, car, service)
     if s["sbas_enable_value"] not in (0, 1):
         raise ConfigError(f"[sim.{name}]: setting 'sbas_enable_value' must be 0 or 1")
-    twin = NovatelTwin(None if kwargs["replay"] else car.truth,
-                       sbas_enable_value=s["sbas_enable_value"], **kwargs)
-    return serve_twin(twin, name, service.settings.host, s["port"])
+    twin = NovatelTwin(None if kwargs["replay"] else car.truth, sbas_enable_value=s["sbas_enable_value"],
+                       model=s["model"], firmware=s["firmware"], **kwargs)
+    host = service.settings.host
+    endpoints = {"COM1": serve_twin(twin, name, host, s["port"])}
+    if s["com2_port"] >= 0:
+        endpoints["COM2"] = serve_twin(twin.port("COM2"), f"{name}.com2", host, s["com2_port"])
+    return NovatelDevice(twin, endpoints)
 
 
 def make_nmea_device(name: str, table: dict, car, service) -> SerialEndpoint:
@@ -109,6 +142,6 @@ def make_nmea_device(name: str, table: dict, car, service) -> SerialEndpoint:
     return serve_twin(twin, name, service.settings.host, s["port"])
 
 
-__all__ = ["NovatelTwin", "NmeaTwin", "make_novatel_device", "make_nmea_device",
+__all__ = ["NovatelTwin", "NovatelDevice", "NmeaTwin", "make_novatel_device", "make_nmea_device",
            "DriveReplay", "RecordedEpoch", "load_drive", "DRIVE_CSV", "GnssErrorModel",
            "CommonErrors", "car_sky", "SkyModel", "Solution", "TruthSolver", "TWIN_SETTINGS"]

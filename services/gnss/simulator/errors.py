@@ -354,6 +354,7 @@ class StandaloneErrors:
         self.selection = SatelliteSelection(rng, profile)
         self.bursts = MultipathBursts(rng, profile)
         self.burst = np.zeros(3)        # the bursts' part of the latest position
+        self.selection_part = np.zeros(3)   # the satellite selection's part of it
         self.outliers = 0
         self.velocity_spikes = 0
 
@@ -361,7 +362,8 @@ class StandaloneErrors:
                  speed_mps: float) -> np.ndarray:
         p, rng = self.p, self.rng
         self.burst = self.bursts.step(t_s, dt_s, speed_mps)
-        error = self.selection.step(dt_s, sats_used, dop) + self.burst
+        self.selection_part = self.selection.step(dt_s, sats_used, dop)
+        error = self.selection_part + self.burst
         error += (p.white_sigma_m * dop) * _unit_t(rng, p.white_dof)
         if _happens(rng, dt_s, p.outlier_interval_s):
             self.outliers += 1
@@ -383,11 +385,20 @@ class StandaloneErrors:
         p = self.p
         changes = 1.0 / NOMINAL_CHANGE_INTERVAL_S + (1.0 / p.swap_interval_s if p.swap_interval_s > 0 else 0.0)
         settle = changes * p.settle_kick_m ** 2 * 0.5 * p.settle_tau_s
-        bursts = self.bursts
+        return p.offset_sigma_m ** 2 + settle + p.white_sigma_m ** 2 + self._burst_variance()
+
+    def own_variance(self) -> float:
+        """The part of `nominal_variance` that is the receiver's own (fix noise and multipath
+        bursts): what differential corrections cannot remove (the selection's steps are the
+        geometry of the sky's range errors, which they do remove)."""
+        return self.p.white_sigma_m ** 2 + self._burst_variance()
+
+    def _burst_variance(self) -> float:
+        p, bursts = self.p, self.bursts
         rate = 0.5 * (bursts.rate(0.0) + bursts.rate(math.inf))
         energy = (bursts.mean_duration_s() - 1.25) * (1.0 + 0.5 * Burst.WOBBLE ** 2)
         size2 = p.burst_size_m ** 2 * math.exp(2.0 * p.burst_size_spread ** 2)
-        return p.offset_sigma_m ** 2 + settle + p.white_sigma_m ** 2 + rate * energy * 0.5 * size2
+        return rate * energy * 0.5 * size2
 
 
 class GnssErrorModel:
@@ -420,6 +431,8 @@ class GnssErrorModel:
             # budget's table), which numpy assigns several times faster than a list of rows
             together = rows and rows == list(range(rows[0], rows[-1] + 1))
             self._common_rows = slice(rows[0], rows[-1] + 1) if together else rows
+        self._common_idx = [i for i, s in enumerate(self.sources) if s.common]
+        self._own_idx = [i for i, s in enumerate(self.sources) if not s.common]
         self.extras = None if self.profile.wander_only else StandaloneErrors(rng, self.profile)
         self._dop = 1.0
         self.set_cep(cep_m, vertical_ratio)
@@ -446,6 +459,41 @@ class GnssErrorModel:
         """What the receiver reports as its position error's standard deviation along E, N, U:
         the error's RMS over a drive, scaled by the latest epoch's geometry (dop_factor)."""
         return self._dop * self._rms
+
+    @property
+    def dop(self) -> float:
+        """The latest epoch's geometry factor (dop_factor of its satellite count)."""
+        return self._dop
+
+    def shares(self) -> tuple[np.ndarray, np.ndarray]:
+        """The parts of the latest position error (ENU m) that differential corrections
+        remove: the common sources' wander (the sky's: the same for every receiver near the
+        base) and the satellite selection's steps (that sky seen through this geometry)."""
+        rows = self._common_idx
+        common = np.add.reduce(self._z[rows] * self._sigma[rows], axis=0)
+        if self.extras is None:
+            return common, np.zeros(3)
+        return common, self._axes * self.extras.selection_part
+
+    def common_rms(self) -> np.ndarray:
+        """The common sources' RMS along E, N, U (m)."""
+        return np.sqrt(np.sum(self._sigma[self._common_idx] ** 2, axis=0))
+
+    def common_change_variance(self, age_s: float) -> np.ndarray:
+        """The mean square along E, N, U (m^2) of how far the common sources move in `age_s`:
+        each a Gauss-Markov process, 2 (1 - exp(-age / tau)) of its variance."""
+        out = np.zeros(3)
+        for i in self._common_idx:
+            out += self._sigma[i] ** 2 * (-2.0 * math.expm1(-age_s / self.sources[i].tau_s))
+        return out
+
+    def own_variance(self) -> np.ndarray:
+        """The mean square along E, N, U (m^2) of what is this receiver's own in its error
+        (noise and multipath: wander, bursts, fix noise) at the average sky: what remains of it
+        under differential corrections."""
+        wander = np.sum(self._sigma[self._own_idx] ** 2, axis=0)
+        extra = 0.0 if self.extras is None else self.extras.own_variance()
+        return wander + extra * self._axes ** 2
 
     def step(self, t_s: float, gps_ms: int | None = None, *, sky: SkyModel | None = None,
              speed_mps: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

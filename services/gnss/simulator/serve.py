@@ -3,9 +3,11 @@
     python -m viena.services.gnss.simulator --kind novatel --port 5001
     python -m viena.services.gnss.simulator --kind nmea --motion route
     python -m viena.services.gnss.simulator --replay drive --replay-speed 5
+    python -m viena.services.gnss.simulator --com2-port 0 --model RT20
 
-It prints ``READY <url>`` once the twin listens (the URL a driver opens) and runs until
-SIGTERM or Ctrl-C. ``--motion parked`` keeps the car at the IST origin; ``route`` drives
+It prints ``READY <url>`` once the twin listens (the URL a driver opens), then
+``COM2 <url>`` when the NovAtel's second port (for corrections) is served too, and runs
+until SIGTERM or Ctrl-C. ``--motion parked`` keeps the car at the IST origin; ``route`` drives
 the simulated car's default loop.
 """
 from __future__ import annotations
@@ -56,6 +58,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--replay-loop", action="store_true")
     p.add_argument("--replay-keep-time", action="store_true",
                    help="keep the recording's own GPS times instead of moving them to now")
+    p.add_argument("--com2-port", type=int, default=-1,
+                   help="NovAtel: also serve its COM2 (corrections) on this TCP port (0: any free one)")
+    p.add_argument("--model", default="RT2WA", help="NovAtel: the model VERSION says (RT2..., RT20..., 3151R)")
+    p.add_argument("--firmware", default="2.310", help="NovAtel: the firmware VERSION says")
     return p
 
 
@@ -78,9 +84,17 @@ def main(argv=None) -> int:
                   outage_interval_s=args.outage_interval_s, replay=replay,
                   replay_speed=args.replay_speed, replay_loop=args.replay_loop,
                   replay_retime=not args.replay_keep_time)
-    twin = (NovatelTwin if args.kind == "novatel" else NmeaTwin)(truth, **common)
+    if args.kind == "novatel":
+        twin = NovatelTwin(truth, model=args.model, firmware=args.firmware, **common)
+    else:
+        twin = NmeaTwin(truth, **common)
     endpoint = SerialEndpoint(twin, args.host, args.port, name=args.kind).start()
+    endpoints = [endpoint]
     print(f"READY {endpoint.url}", flush=True)
+    if args.kind == "novatel" and args.com2_port >= 0:
+        com2 = SerialEndpoint(twin.port("COM2"), args.host, args.com2_port, name="novatel.com2").start()
+        endpoints.append(com2)
+        print(f"COM2 {com2.url}", flush=True)
     try:
         if car is not None:
             dt = 1.0 / CAR_RATE_HZ
@@ -89,7 +103,8 @@ def main(argv=None) -> int:
         else:
             stop.wait()
     finally:
-        endpoint.stop()
+        for e in endpoints:
+            e.stop()
     return 0
 
 

@@ -18,6 +18,7 @@ import pymap3d
 from viena.services.gnss.driver.novatel.enums import PositionType, SolutionStatus
 
 from .errors import GnssErrorModel, SkyModel
+from .rover import Rover
 
 #: The receiver's position when it has none (seen in the car's data).
 NO_FIX_ECEF = (100.0, 0.0, 0.0)
@@ -48,6 +49,9 @@ class Solution:
     sats_used: int = 0
     undulation_m: float = 0.0           # geoid above ellipsoid, for BESTPOS and GGA
     sigma_enu_m: tuple | None = None    # the position sigmas along E, N, U, when known
+    station_id: str = ""                # the differential base's ID (stn id)
+    sats_l1_rtk: int = 0                # satellites above the RTK mask, L1 ...
+    sats_l2_rtk: int = 0                # ... and L2
     _geodetic: tuple | None = field(default=None, compare=False, repr=False)
 
     @property
@@ -111,6 +115,7 @@ class TruthSolver:
         self.undulation_m = undulation_m
         self.hold_limit_s = hold_limit_s
         self.pos_type = PositionType.SINGLE
+        self.rover: Rover | None = None     # the corrections' side, when the receiver takes them
         self._t0_ms: int | None = None
         self._last_fix: Solution | None = None
         self.no_fix_until_ms = -1       # cold start: no fix before this epoch
@@ -127,7 +132,10 @@ class TruthSolver:
         truth = self.truth()
         err_pos, err_vel = self.errors.step(t_s, gps_ms, sky=self.sky, speed_mps=truth.speed_mps)
         sky = self.sky.at(t_s)
+        rover = self.rover
         if sky.outage or gps_ms < self.no_fix_until_ms:
+            if rover is not None:
+                rover.lose_lock(gps_ms)
             return self._no_fix(gps_ms, sky)
         dt = max(-0.2, min(0.2, (utc_ns - truth.t_ns) / 1e9))
         # 3-vectors as floats from here: element by element the same IEEE operations numpy
@@ -135,23 +143,36 @@ class TruthSolver:
         frame = truth.frame
         vel_enu = truth.vel_enu_floats_of(self.lever_arm_m)
         enu = [p + v * dt for p, v in zip(truth.enu_floats_of(self.lever_arm_m), vel_enu)]
-        ecef = [p + e for p, e in zip(frame.ecef_of_enu(*enu), frame.vector_of_enu(*err_pos.tolist()))]
+        antenna = frame.ecef_of_enu(*enu)
+        diff = None if rover is None else rover.solve(gps_ms, antenna, err_pos)
+        if diff is not None:
+            err_pos = diff.error_enu_m
+        ecef = [p + e for p, e in zip(antenna, frame.vector_of_enu(*err_pos.tolist()))]
         # a Doppler velocity is DOPPLER_LATENCY_S old at its time tag (vol. 2, BESTVEL:
         # "subtract from the time"), so it is the velocity of that earlier instant
         lag = dt - DOPPLER_LATENCY_S
         vel_then = [v + a * lag for v, a in zip(vel_enu, truth.floats("accel_enu_mps2"))]
         vel = frame.vector_of_enu(*(v + e for v, e in zip(vel_then, err_vel.tolist())))
         lat0, lon0, _ = truth.origin
-        sigma_enu = tuple(self.errors.sigma_enu.tolist())
+        sigma_enu = tuple(self.errors.sigma_enu.tolist()) if diff is None else diff.sigma_enu_m
         sol = Solution(
-            gps_ms, SolutionStatus.SOL_COMPUTED, self.pos_type, tuple(ecef),
+            gps_ms, SolutionStatus.SOL_COMPUTED, self.pos_type if diff is None else diff.pos_type, tuple(ecef),
             _sigma_ecef_of(sigma_enu, float(lat0), float(lon0)), SolutionStatus.SOL_COMPUTED,
             PositionType.DOPPLER_VELOCITY, vel,
             _sigma_ecef_of(tuple(self.errors.velocity_sigma.tolist()), float(lat0), float(lon0)),
             sats_tracked=sky.sats_tracked, sats_used=sky.sats_used,
-            undulation_m=self.undulation_m, sigma_enu_m=sigma_enu)
+            undulation_m=self.undulation_m, sigma_enu_m=sigma_enu,
+            **({} if diff is None else self._differential_fields(diff, sky.sats_used)))
         self._last_fix = sol
         return sol
+
+    @staticmethod
+    def _differential_fields(diff, sats_used: int) -> dict:
+        """A differential solution's age and base, and its satellites above the RTK mask
+        (L2 too for the narrow-lane types: RT-2 on L1/L2 observables)."""
+        l1 = sats_used if diff.rtk else 0
+        l2 = l1 if diff.pos_type in (PositionType.NARROW_FLOAT, PositionType.NARROW_INT) else 0
+        return dict(diff_age_s=diff.diff_age_s, station_id=diff.station_id, sats_l1_rtk=l1, sats_l2_rtk=l2)
 
     def _no_fix(self, gps_ms: int, sky) -> Solution:
         """INSUFFICIENT_OBS: the last fix held with its age growing, then X=100, Y=Z=0."""
