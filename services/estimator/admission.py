@@ -16,9 +16,13 @@ receiver, with the checks a viena fix can carry:
 | vertical sigma | `admit_max_sigma_v_m` | the vertical sigma is above it |
 | speed sigma | `admit_max_speed_sigma_mps` | the velocity's horizontal sigma is above it |
 | drift | `admit_max_drift_mps` | the car stands (the IMU says) and the fixes move |
+| kind flicker | | the car stands and the kind changed more than KIND_FLICKER_CHANGES times in KIND_FLICKER_S |
 
 The drift: the fixes' smoothed position moving faster than the setting over 3 s, or their
-reported speed, smoothed, above it.
+reported speed, smoothed, above it. A change of the solution's kind (corrections coming or
+going) re-bases the positions it compares (the step it makes is not a drift) but keeps its
+last verdict until a new 3 s span gives one. A kind that changes faster than that would
+never be judged: hence the flicker check.
 
 A receiver is on probation until its fixes have passed for `admit_hold_s` (counted on the
 fixes' own clock); fixes on probation are counted in `gnss_rejected.probation`, and the
@@ -29,15 +33,24 @@ receiver's standing is in the state (`gnss_admission`).
 from __future__ import annotations
 
 import math
+from collections import deque
 
 #: the drift: the fixes' position, smoothed over about DRIFT_TAU_S, moved over DRIFT_SPAN_S
 #: (a rate from one fix to the next is the fixes' noise over 50 ms, metres a second)
 DRIFT_TAU_S = 1.0
 DRIFT_SPAN_S = 3.0
+#: more kind changes than this within KIND_FLICKER_S while the car stands: the receiver
+#: flickers (its drift can never be judged). Converging from single point takes three
+#: (single -> dgps -> float -> fixed), often within seconds; a fourth within 9 s is no
+#: convergence, and a kind changing every 3 s or faster (which no 3 s drift span survives)
+#: makes four in 9 s
+KIND_FLICKER_CHANGES = 3
+KIND_FLICKER_S = DRIFT_SPAN_S * 3
 
 
 class _Receiver:
-    __slots__ = ("passing_since", "failing_since", "admitted", "smooth", "anchor", "speed", "rate", "why")
+    __slots__ = ("passing_since", "failing_since", "admitted", "smooth", "anchor", "speed", "rate", "why", "kind",
+                 "kind_changes")
 
     def __init__(self):
         self.passing_since: int | None = None
@@ -48,6 +61,8 @@ class _Receiver:
         self.speed = 0.0                        # the reported speed, smoothed while standing
         self.rate = 0.0                         # the smoothed position's last rate, m/s
         self.why = "no fix yet"
+        self.kind: str | None = None            # the solution kind of its last fix
+        self.kind_changes: deque[int] = deque()  # when it changed, within KIND_FLICKER_S
 
     def drift(self, t: int, e: float, n: float, speed: float | None, standing: bool) -> float:
         """How fast the fixes move while the car stands (m/s); 0 while it moves."""
@@ -56,10 +71,10 @@ class _Receiver:
             self.speed = self.rate = 0.0
             return 0.0
         if self.smooth is None or not 0 < t - self.smooth[0] < 2_000_000_000:
+            # (a new start: the positions only; the last verdict on their rate stands)
             self.smooth = self.anchor = (t, e, n)
             self.speed = speed or 0.0
-            self.rate = 0.0
-            return self.speed
+            return max(self.rate, self.speed)
         k = min(1.0, (t - self.smooth[0]) * 1e-9 / DRIFT_TAU_S)
         self.smooth = (t, self.smooth[1] + k * (e - self.smooth[1]), self.smooth[2] + k * (n - self.smooth[2]))
         if speed is not None:
@@ -85,6 +100,13 @@ class Admission:
         """The first check `fix` fails, or None. `enu_sigma` its ENU sigmas, `enu` its
         position (for the drift), `standing` whether the IMU says the car stands."""
         r = self.receivers.setdefault(fix.unit, _Receiver())
+        if fix.kind != r.kind:
+            # corrections came or went: the fixes step, which is no drift (the verdict stays)
+            if r.kind is not None:
+                r.kind_changes.append(fix.t)
+            r.kind, r.smooth, r.anchor = fix.kind, None, None
+        while r.kind_changes and not 0 <= fix.t - r.kind_changes[0] <= KIND_FLICKER_S * 1e9:
+            r.kind_changes.popleft()
         speed = None
         if fix.has_velocity:
             v = fix.vel_ecef_mps
@@ -101,6 +123,8 @@ class Admission:
             return "speed_sigma"
         if drift > self.max_drift:
             return "drift"
+        if standing and len(r.kind_changes) > KIND_FLICKER_CHANGES:
+            return "kind_flicker"
         return None
 
     def admit(self, fix, enu_sigma, enu, standing: bool) -> str | None:

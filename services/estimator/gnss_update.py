@@ -7,9 +7,15 @@ For each fix the timeline hands over:
   ENU sigmas when the fix has them, else from ECEF ones), the lever arm taken off
   (p + R l, v + R (w x l)); while the attitude is unknown the arm's direction is too,
   and its length widens the fix;
-- the fix's variance split into a white part and the receiver's slowly wandering error
-  (gnss_noise.py, the receiver's error states in kalman.py), each fix widened by what
-  the IMU clock's uncertainty makes of it (timing.py);
+- the fix's variance, no less than its solution kind's floor (`gnss_sigma_floor_m`),
+  split into a white part and the receiver's slowly wandering error (gnss_noise.py, the
+  receiver's error states in kalman.py; a carrier-phase fix is white up to its floor),
+  each fix widened by what the IMU clock's uncertainty makes of it (timing.py);
+- a change of the receiver's solution kind (single, dgps, float, fixed and back) is a
+  known step, not a fault: the receiver's error starts again at the new kind's size, so
+  the step goes into it, not into the position; a step to a better kind is believed
+  (the position widens to it if the gate would refuse it), when it is within 3 sigma of
+  the old kind's fixes and at most once per receiver every STEP_BELIEVED_EVERY_S;
 - the innovation against the state *at the fix's time* (the trajectory history), and
   the velocity's at its own, older time (its latency: `gnss_vel_latency_s`, else the
   fix's `vel_latency_s`); one Kalman update with the car's pseudo-measurements riding
@@ -33,10 +39,10 @@ from viena.common.geodesy import LocalFrame
 from viena.services.estimator.admission import Admission
 from viena.services.estimator.attitude import cross, rotate
 from viena.services.estimator.doppler import DopplerSpeeds
-from viena.services.estimator.gnss_noise import WhiteShare
-from viena.services.estimator.kalman import Diverged
+from viena.services.estimator.gnss_noise import WhiteShare, carrier_share
+from viena.services.estimator.kalman import Diverged, inverse_small, quadratic
 from viena.services.estimator.timing import OffsetHint
-from viena.services.gnss.model.fix import Fix
+from viena.services.gnss.model.fix import SOLUTION_KINDS, Fix, solution_rank
 
 #: the IMU-driven velocity this far (m/s) off GNSS's at this many fixes in a row: the IMU
 #: is wrong (150 m/s^2 for a second is in the sensor's range, but no car's motion)
@@ -65,6 +71,14 @@ MOUNT_TILT_VAR = math.radians(1.0) ** 2
 VEL_UNKNOWN_VAR = 40.0 ** 2
 #: the size of a receiver's wandering error follows its sigmas over this long (s)
 LEVEL_TAU_S = 30.0
+#: the least wandering error's sigma (m): a fixed RTK solution has none, but the Kalman
+#: filter's receiver block must keep a size (it is rescaled by ratios)
+MIN_WANDER_M = 0.001
+#: a step to a better kind is believed past the gate at most this often per receiver (s):
+#: a float <-> fixed flicker (or a wrong integer fix, again and again) gets no more
+STEP_BELIEVED_EVERY_S = 10.0
+#: ... and only when it is within this many of the old kind's sigmas (and the new fix's)
+STEP_BELIEVED_SIGMAS = 3.0
 
 
 class GnssUpdate:
@@ -86,8 +100,14 @@ class GnssUpdate:
         self.fix_interval_ns = int(1e9 / rate) - 5_000_000 if rate > 0 else 0
         self.last_fix_t: dict[str, int] = {}    # last usable fix per unit
         self.used_fix_t: dict[str, int] = {}    # last fix used per unit (rate limit)
-        self.white: dict[str, WhiteShare] = {}  # what is white of each receiver's variance
+        self.white: dict[tuple[str, str], WhiteShare] = {}  # what is white of each receiver's
+        #                                                    variance, per solution kind
+        self.kind: dict[str, str] = {}          # each receiver's solution kind, last fix used
+        #: each receiver's last fix whose position the filter took: (t, kind, diff_age_s), for the state
+        self.solutions: dict[str, tuple[int, str, float | None]] = {}
+        self.floors = _floors(s.gnss_sigma_floor_m)
         self.level: dict[str, tuple] = {}       # each receiver's variance, smoothed, and when
+        self.step_believed_t: dict[str, int] = {}  # when each receiver's last step was believed
         self.timing = OffsetHint()              # what the residuals say of the IMU's clock
         self.admission = Admission(s)           # which receivers are in use (admission.py)
         self.doppler = DopplerSpeeds(s.admit_max_speed_sigma_mps)  # every receiver's speed, used or not
@@ -101,6 +121,8 @@ class GnssUpdate:
         self.speed, self.speed_t = math.inf, None   # last GNSS horizontal speed, and its time
         self.vel_refused: dict[str, int] = {}   # each receiver's velocities refused in a row
         self.positions: dict[str, list] = {}    # a position-only receiver's recent positions
+        #: receivers whose next fix steps to a better kind: the old kind's level (variances E, N, U)
+        self.stepped_up: dict[str, tuple | None] = {}
         self.arm_known = False                  # the position is the body origin's, not an antenna's
         for share in self.white.values():
             share.forget()
@@ -109,11 +131,27 @@ class GnssUpdate:
         """A new timeline: the receivers' times so far mean nothing."""
         self.last_fix_t.clear()
         self.used_fix_t.clear()
+        self.step_believed_t.clear()
         self.doppler.forget()
         self.timing = OffsetHint()
 
     def live_units(self, t: int, timeout_ns: int) -> list[str]:
         return sorted(u for u, tf in self.last_fix_t.items() if t - tf < timeout_ns)
+
+    def solution(self, t: int, timeout_ns: int) -> tuple[str, float | None, dict[str, str]]:
+        """What the estimate rests on at time t: the best solution kind among the receivers
+        whose fixes went into the filter within `timeout_ns` ("none" if none did), the age of
+        that kind's corrections now (the youngest, when they carry one and the kind has any),
+        and each such receiver's kind."""
+        live = {u: v for u, v in self.solutions.items() if t - v[0] < timeout_ns}
+        kinds = {u: v[1] for u, v in sorted(live.items())}
+        if not live:
+            return "none", None, kinds
+        best = max(kinds.values(), key=solution_rank)
+        ages = [age + max(0.0, (t - tf) * 1e-9) for tf, kind, age in live.values()
+                if kind == best and age is not None]
+        age = min(ages) if ages and solution_rank(best) > solution_rank("single") else None
+        return best, age, kinds
 
     def time_var(self) -> float:
         """Variance of the IMU's clock against GNSS's (s^2): the setting's, and the offset
@@ -155,11 +193,20 @@ class GnssUpdate:
             cov = np.diag(np.square(fix.enu_sigma_m))
         else:
             cov = frame.cov_to_enu(fix.ecef_sigma_m)
+        kind = fix.kind
+        floor = self.floors.get(kind)
+        if floor is not None:               # no receiver is surer than its kind allows
+            cov = cov + np.diag(np.maximum(0.0, np.square(floor) - cov.diagonal()))
         sig = np.sqrt(cov.diagonal())
         why = self.admission.admit(fix, sig, z, est.standstill.still)
         if why is not None:
             counters.gnss(why)
             return
+        before = self.kind.get(unit)
+        if before != kind:
+            self.kind[unit] = kind
+            if before is not None:
+                self._kind_changed(unit, before, kind)
         timeline = est.timeline
         imu_mode = timeline.imu_live_at(fix.t)
         if not imu_mode:
@@ -181,10 +228,14 @@ class GnssUpdate:
             vel = (vel[0] - arm_v[0], vel[1] - arm_v[1], vel[2] - arm_v[2])
 
         # the fix's variance: a white part, and the receiver's wandering error
-        share = self.white.get(unit)
+        share = self.white.get((unit, kind))
         if share is None:
-            share = self.white[unit] = WhiteShare(s.gnss_white_fraction)
-        sh, sv = min(MAX_WHITE_SHARE, share.horizontal), min(MAX_WHITE_SHARE, share.vertical)
+            share = self.white[unit, kind] = WhiteShare.of_kind(kind, s.gnss_white_fraction)
+        if share.learns:
+            sh, sv = min(MAX_WHITE_SHARE, share.horizontal), min(MAX_WHITE_SHARE, share.vertical)
+        else:                               # carrier phase: white up to its kind's floor
+            sh = carrier_share(0.5 * float(cov[0, 0] + cov[1, 1]), None if floor is None else floor[0])
+            sv = carrier_share(float(cov[2, 2]), None if floor is None else floor[2])
         d = np.array([math.sqrt(sh), math.sqrt(sh), math.sqrt(sv)])
         white_cov = cov * np.outer(d, d)
         if imu_mode and est.heading.valid:
@@ -196,22 +247,34 @@ class GnssUpdate:
             Rp = cov
         var = cov.diagonal()
         # the wandering error's size follows the receiver's sigmas over LEVEL_TAU_S, not
-        # each fix's: one fix with a wild sigma says little about the sky's error
+        # each fix's: one fix with a wild sigma says little about the sky's error. A
+        # carrier-phase receiver's growing sigma is its corrections ageing (an RTK solution
+        # extrapolates them: centimetres a second): that size counts at once
         level = self.level.get(unit)
         if level is None:
             level = var.tolist()
         else:
             k = min(1.0, max(0.0, (fix.t - level[3]) * 1e-9) / LEVEL_TAU_S)
             level = [level[i] + k * (var[i] - level[i]) for i in range(3)]
+            if not share.learns:
+                level = [max(level[i], var[i]) for i in range(3)]
         self.level[unit] = (*level[:3], fix.t)
-        wander = (math.sqrt((1.0 - sh) * level[0]), math.sqrt((1.0 - sh) * level[1]),
-                  math.sqrt((1.0 - sv) * level[2]))
+        if share.learns:
+            wander_var = ((1.0 - sh) * level[0], (1.0 - sh) * level[1], (1.0 - sv) * level[2])
+        elif floor is not None:             # what a carrier-phase receiver says beyond its noise
+            wander_var = tuple(level[i] - floor[i] * floor[i] for i in range(3))
+        else:
+            wander_var = (0.0, 0.0, 0.0)
+        wander = tuple(max(MIN_WANDER_M, math.sqrt(max(0.0, v))) for v in wander_var)
         if not known_att:                   # the arm's direction is unknown: widen the fix
             Rp = Rp + np.eye(3) * (lever[0] ** 2 + lever[1] ** 2 + lever[2] ** 2)
 
         kf = est.kf
         if s.gnss_bias_tau_s > 0:
-            kf.receiver(unit, wander)
+            if kf.receiver_group(unit) not in (None, kind):
+                # another kind of solution, another error: the step goes into it
+                kf.reset_receiver(unit, wander, kind)
+            kf.receiver(unit, wander, kind)
             kf.rescale_receiver(unit, wander)
         else:
             Rp = cov + (Rp - white_cov if imu_mode and est.heading.valid else 0.0)
@@ -268,9 +331,13 @@ class GnssUpdate:
             pseudo = est.constraints.rows(kf, att, est.heading, est.standstill.still, est.tilt_var()[1])
         if pseudo is not None:
             est.constraints.last_t = timeline.t_state
+        if unit in self.stepped_up:
+            self._widen_to_step(nu_p, Rp, fix, self.stepped_up.pop(unit))
         pos_ok, vel_ok, dx, d2p, d2v = kf.update_fix(nu_p, Rp, nu_v, velR, pseudo, s.gate_chi2, unit)
         if dx is not None:
             est.corrected(dx)
+        if pos_ok:                          # what the estimate rests on: positions it took
+            self._rests_on(fix)
         judge = est.consistency
         judge.seen("position", d2p, 3, s.gate_chi2)
         # positions refused while the same receiver's velocity agrees: its position alone
@@ -323,6 +390,60 @@ class GnssUpdate:
                 est.heading.course(vel, velR, yaw, est.history, course_var)
         elif vel is None:
             self._course_from_positions(fix, z, arm, white_cov, course_var, imu_mode)
+
+    def _kind_changed(self, unit: str, before: str, kind: str) -> None:
+        """A receiver's solution changed kind (corrections came, converged, stopped): its
+        error is another one from now on. What was learnt of the old one's size and of its
+        recent positions no longer holds; the Kalman filter's block for it starts again at
+        the next update (`NavKalman.reset_receiver`), and a better kind is believed."""
+        est = self.est
+        est.counters.counts["gnss_kind_changes"] += 1
+        old_level = self.level.pop(unit, None)
+        self.positions.pop(unit, None)
+        share = self.white.get((unit, kind))
+        if share is not None:
+            share.forget()                  # its last fix was before the other kind's spell
+        if solution_rank(kind) > solution_rank(before):
+            self.stepped_up[unit] = old_level
+        else:
+            self.stepped_up.pop(unit, None)
+        est.log.info("%s: solution %s -> %s (a known step: the receiver's error starts again)",
+                     unit, before, kind)
+
+    def _widen_to_step(self, nu_p, Rp, fix, old_level: tuple | None) -> None:
+        """The first fix of a better kind: where it puts the antenna is believed. If the gate
+        would refuse it (the estimate was surer of itself than the old kind's fixes
+        deserved), the position's covariance grows by the step, nu nu^T, so it is taken;
+        counted in `counts.kind_steps_believed`, not as a widening. Only a step the old
+        kind's fixes could have made (horizontally within STEP_BELIEVED_SIGMAS of their
+        level and this fix's sigma), and once per receiver every STEP_BELIEVED_EVERY_S: a
+        wrong integer fix is a step to a better kind too, and a flicker steps again and
+        again. Otherwise the gate judges the fix as any other."""
+        est, unit = self.est, fix.unit
+        kf = est.kf
+        d2 = quadratic(inverse_small(kf.position_innovation_cov(Rp, unit)), nu_p)
+        if d2 <= self.settings.gate_chi2 or old_level is None:
+            return
+        step_h = math.hypot(nu_p[0], nu_p[1])
+        var_h = max(old_level[0], old_level[1]) + max(float(Rp[0, 0]), float(Rp[1, 1]))
+        if step_h > STEP_BELIEVED_SIGMAS * math.sqrt(var_h):
+            est.log.info("%s: the step to a better solution (%.2f m) is beyond the old one's %.2f m: "
+                         "left to the gate", unit, step_h, math.sqrt(var_h))
+            return
+        last = self.step_believed_t.get(unit)
+        if last is not None and 0 <= fix.t - last < STEP_BELIEVED_EVERY_S * 1e9:
+            est.log.info("%s: a step to a better solution %.1f s after the last one believed: left to the gate",
+                         unit, (fix.t - last) * 1e-9)
+            return
+        self.step_believed_t[unit] = fix.t
+        kf.inflate(0, nu_p)
+        est.counters.counts["kind_steps_believed"] += 1
+        est.log.info("%s: the step to a better solution (%.2f m) widens the position",
+                     unit, math.sqrt(nu_p[0] ** 2 + nu_p[1] ** 2 + nu_p[2] ** 2))
+
+    def _rests_on(self, fix) -> None:
+        """The filter took this fix's position: the estimate rests on its solution."""
+        self.solutions[fix.unit] = (fix.t, fix.kind, fix.diff_age_s)
 
     def _course_from_positions(self, fix, z, arm, white_cov, extra_var: float, imu_mode: bool) -> None:
         """A receiver without velocity: the body origin's velocity as the straight line
@@ -432,7 +553,7 @@ class GnssUpdate:
         kf = est.kf
         kf.reset()
         if self.settings.gnss_bias_tau_s > 0:
-            kf.receiver(fix.unit, wander)
+            kf.receiver(fix.unit, wander, fix.kind)
         kf.initialize(pos, Rp, vel, velR, fix.unit)
         if est.attitude.aligned:
             kf.retilt(est.tilt_sigma_rad())
@@ -440,6 +561,7 @@ class GnssUpdate:
         est.timeline.catch_up(fix.t)
         est.history.clear()
         est.counters.gnss_used += 1
+        self._rests_on(fix)
         est.log.info("position initialised from %s: ENU %.2f %.2f %.2f", fix.unit, *pos)
         est.heading.course(vel, velR, est.attitude.yaw, est.history)
 
@@ -473,3 +595,15 @@ class GnssUpdate:
             # older than the history: just after (re)initialisation. Extrapolate back.
             return [x[k] - x[3 + k] * dt for k in range(3)], x[3:6], yaw_now
         return None
+
+
+def _floors(given: dict) -> dict[str, tuple[float, float, float]]:
+    """`gnss_sigma_floor_m` as sigmas along E, N, U per solution kind."""
+    floors = {}
+    for kind, hv in given.items():
+        if solution_rank(kind) < 0:
+            raise ValueError(f"gnss_sigma_floor_m.{kind}: a solution kind, one of {', '.join(SOLUTION_KINDS)}")
+        if len(hv) != 2 or min(hv) < 0.0:
+            raise ValueError(f"gnss_sigma_floor_m.{kind}: [horizontal, vertical] in m, got {list(hv)!r}")
+        floors[kind] = (float(hv[0]), float(hv[0]), float(hv[1]))
+    return floors

@@ -15,7 +15,9 @@ State x = [p_E p_N p_U, v_E v_N v_U, b_x b_y b_z | t_E t_N | g_E g_N g_U per rec
   first-order Gauss-Markov process of correlation time `gnss_bias_tau_s` (Brown & Hwang
   2012, ch. 2; Groves 2013, ch. 9 on GNSS error correlation). A fix measures p + R l + g
   plus white noise. Receivers on one car share one sky: their blocks are correlated
-  (coefficient `gnss_common_fraction`).
+  (coefficient `gnss_common_fraction`) while their solutions are of one kind (`group`:
+  a single-point error and an RTK one share nothing); a receiver whose solution changes
+  kind gets a new error (`reset_receiver`).
 
 The IMU drives the prediction (`a_enu = R (f - b) - g`); GNSS position and velocity,
 non-holonomic and zero-velocity pseudo-measurements correct it. The yaw is not a state
@@ -82,6 +84,7 @@ class NavKalman:
         #: the IMU-driven process noise times this (consistency.py: an adaptive Q)
         self.q_scale = 1.0
         self._sigma: dict[str, tuple] = {}     # unit -> its error's stationary sigmas (E, N, U)
+        self._group: dict[str, str] = {}       # unit -> its solution's kind: who shares its sky
         self._h_cache: dict[tuple, np.ndarray] = {}     # (kind, n, k) -> H rows (`_rows`)
         self.initialized = False
         self._size(self.core)
@@ -128,38 +131,66 @@ class NavKalman:
         self.initialized = False
         self.receivers.clear()
         self._sigma.clear()
+        self._group.clear()
         self._size(self.core)
 
     # -- the receivers' errors ---------------------------------------------------------------
-    def receiver(self, unit: str, sigma_enu) -> int:
+    def receiver(self, unit: str, sigma_enu, group: str = "") -> int:
         """The first state of `unit`'s error block, made on first use with stationary
-        sigmas `sigma_enu` (m, E N U) and the prior correlation to the receivers before."""
+        sigmas `sigma_enu` (m, E N U) and the prior correlation to the receivers before
+        of the same `group` (their solutions' kind)."""
         k = self.receivers.get(unit)
         if k is not None:
             return k
-        sigma = tuple(float(v) for v in sigma_enu)
         n = self.n
         k = n
         x, P = self.x + [0.0, 0.0, 0.0], np.zeros((n + 3, n + 3))
         P[:n, :n] = self.P
-        if self.receivers:
-            # g_new = c g_first + e: what the shared sky makes of the new one, and its own part
-            first = next(iter(self.receivers))
-            f = self.receivers[first]
-            c = np.diag([self.noise.gnss_rho * a / b for a, b in zip(sigma, self._sigma[first])])
-            P[k:k + 3, :n] = c @ self.P[f:f + 3, :]
-            P[:n, k:k + 3] = P[k:k + 3, :n].T
-            P[k:k + 3, k:k + 3] = (c @ self.P[f:f + 3, f:f + 3] @ c
-                                   + np.diag(np.square(sigma)) * (1.0 - self.noise.gnss_rho ** 2))
-            x[k:k + 3] = list(c @ np.array(self.x[f:f + 3]))
-        else:
-            P[k:k + 3, k:k + 3] = np.diag(np.square(sigma))
         pending = (self._pending_dt, self._pending_mode, self._pending_rot, self._f_dt)
         self.n, self.x, self.P = n + 3, x, P
         self._pending_dt, self._pending_mode, self._pending_rot, self._f_dt = pending
         self.receivers[unit] = k
-        self._sigma[unit] = sigma
+        self._fill(unit, sigma_enu, group)
         return k
+
+    def reset_receiver(self, unit: str, sigma_enu, group: str) -> None:
+        """`unit`'s solution changed kind (single to RTK fixed, fixed back to single): its
+        error now is another one, unrelated to the old one nor to the estimate's error so
+        far, of sigmas `sigma_enu`. So the step its fixes make goes into this new error's
+        uncertainty, not into the position; the position's own uncertainty (what it owes
+        to the old error) stays, for the new fixes to correct."""
+        self.flush()
+        k = self.receivers[unit]
+        self.x[k:k + 3] = [0.0, 0.0, 0.0]
+        self.P[k:k + 3, :] = 0.0
+        self.P[:, k:k + 3] = 0.0
+        self._fill(unit, sigma_enu, group)
+
+    def _fill(self, unit: str, sigma_enu, group: str) -> None:
+        """A fresh error block for `unit` (its rows zero): alone in its group, its
+        stationary covariance; else g = c g_first + e, what the shared sky makes of it
+        through the group's first receiver, and its own part."""
+        k = self.receivers[unit]
+        sigma = tuple(float(v) for v in sigma_enu)
+        first = next((u for u, g in self._group.items() if g == group and u != unit), None)
+        P = self.P
+        if first is not None:
+            f = self.receivers[first]
+            c = np.diag([self.noise.gnss_rho * a / b for a, b in zip(sigma, self._sigma[first])])
+            row = c @ P[f:f + 3, :]
+            P[k:k + 3, :] = row
+            P[:, k:k + 3] = row.T
+            P[k:k + 3, k:k + 3] = (c @ P[f:f + 3, f:f + 3] @ c
+                                   + np.diag(np.square(sigma)) * (1.0 - self.noise.gnss_rho ** 2))
+            self.x[k:k + 3] = list(c @ np.array(self.x[f:f + 3]))
+        else:
+            P[k:k + 3, k:k + 3] = np.diag(np.square(sigma))
+        self._sigma[unit] = sigma
+        self._group[unit] = group
+
+    def receiver_group(self, unit: str) -> str | None:
+        """The kind of solution `unit`'s error block was made for (None: it has none)."""
+        return self._group.get(unit)
 
     def rescale_receiver(self, unit: str, sigma_enu) -> None:
         """The receiver's error has another size now (its sigmas changed): the error is
@@ -184,7 +215,7 @@ class NavKalman:
     def _prior(self, a: str, b: str) -> np.ndarray:
         """The stationary covariance of two receivers' errors."""
         sa, sb = self._sigma[a], self._sigma[b]
-        c = 1.0 if a == b else self.noise.gnss_rho
+        c = 1.0 if a == b else self.noise.gnss_rho if self._group[a] == self._group[b] else 0.0
         return np.diag([c * u * v for u, v in zip(sa, sb)])
 
     # -- prediction -----------------------------------------------------------------------

@@ -104,6 +104,8 @@ def build_state(est, seq: int) -> tuple[dict, list]:
         **est.consistency.report(),
         "gnss_admission": est.gnss.admission.report(),
     }
+    kind, diff_age, kinds = est.gnss.solution(t, est.gnss_timeout_ns)
+    out.update(gnss_kind=kind, gnss_diff_age_s=diff_age, gnss_kinds=kinds)
     numbers = [*pos, *vel, *bias, *pos_var, *vel_var, *q, *att_var, *att.rate, *att.gyro_bias,
                ee, en, eu, nn, nu, uu, sigma_h]
     if geo[0] is not None:

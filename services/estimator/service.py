@@ -108,7 +108,7 @@ class EstimatorService(Service):
             for name in ("mode", "heading_source", "gnss_live", "gnss_used", "gnss_rejected",
                          "input_rejected", "time_refused", "last_reset", "sigma_h_m",
                          "imu_time_offset_hint_s", "imu_mount_hint_deg", "nis", "test_ratio",
-                         "process_noise_scale", "gnss_admission"):
+                         "process_noise_scale", "gnss_admission", "gnss_kind", "gnss_diff_age_s"):
                 self.health.set(name, state[name])
             self._report_clock(state["imu_time_offset_hint_s"])
 

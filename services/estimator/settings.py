@@ -88,6 +88,11 @@ class EstimatorSettings:
                                                "covariance but are never estimated (Schmidt)")
     gnss_white_fraction: float = setting(0.1, "share of a fix's variance taken as white until the "
                                               "fixes show theirs")
+    gnss_sigma_floor_m: dict[str, tuple[float, ...]] = setting(
+        {"sbas": (0.5, 1.0), "dgps": (0.5, 1.0), "float": (0.1, 0.2), "fixed": (0.02, 0.04)},
+        "the least sigma a fix of each solution kind is taken with, kind = [horizontal, vertical] "
+        "in m (an over-optimistic receiver cannot make the filter brittle); float and fixed: their "
+        "white noise, the rest of their sigma wanders")
     imu_time_sigma_s: float = setting(0.02, "how far the IMU's stamps may be off the GNSS clock, s")
     # time
     late_window_s: float = setting(1.0, "how late a GNSS fix may be and still be used")

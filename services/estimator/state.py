@@ -15,7 +15,9 @@ target point: routes, and the distance, bearing and heading error to the next ch
 are the pilot's (viena.pilot.state/1). Removing optional fields keeps both sides reading
 each other: a reader of the older /2 takes a state without them (an optional field may be
 missing), and this schema decodes an older state with them (decoding keeps unknown
-fields), so the name stays (docs/dataflow.md#samples).
+fields), so the name stays (docs/dataflow.md#samples). Issue 28 added three optional
+fields the same way: the solution kind the estimate rests on, its corrections' age, and
+each receiver's kind.
 """
 from __future__ import annotations
 
@@ -81,6 +83,12 @@ STATE = Schema("viena.estimator.state/2", {
     "test_ratio": F.optional(F.map),      # kind -> last NIS over the gate (> 1: refused)
     "process_noise_scale": F.optional(F.float),     # the adaptive process noise's factor
     "gnss_admission": F.optional(F.map),  # receiver -> "in use", "probation" or "failing <check>"
+    # the solution it rests on (issue 28; optional: older states lack them): the best kind
+    # (services/gnss/model/fix.py SOLUTION_KINDS: none, single, sbas, dgps, float, fixed) among
+    # the receivers whose fixes went in within gnss_timeout_s, and the age of its corrections now
+    "gnss_kind": F.optional(F.str),
+    "gnss_diff_age_s": F.optional(F.float),
+    "gnss_kinds": F.optional(F.map),      # receiver -> the kind of its last fix that went in
 })
 
 MODES_HELP = {
@@ -119,6 +127,10 @@ def monitor_view(state: dict) -> dict[str, str]:
     nis = state.get("nis")
     if isinstance(nis, dict) and any(number(v) is not None for v in nis.values()):
         cells["NIS pos/vel/course"] = "/".join(fmt_num(nis.get(k), 1) for k in ("position", "velocity", "course"))
+    kind = state.get("gnss_kind")
+    if isinstance(kind, str) and kind not in ("none", "single"):   # corrections: which, how old
+        age = number(state.get("gnss_diff_age_s"))
+        cells["solution"] = kind + ("" if age is None else f", corrections {age:.1f} s old")
     admission = state.get("gnss_admission")
     if isinstance(admission, dict) and any(v != "in use" for v in admission.values()):
         cells["receivers"] = ", ".join(f"{k} {v}" for k, v in sorted(admission.items(), key=str))

@@ -43,6 +43,7 @@ from viena.common.settings import part, setting
 from viena.services.pilot.inbox import ACCEPTED, CMD, REJECTED, ROUTE, Inbox, Request
 from viena.services.pilot.model.estimate import estimate_of
 from viena.services.pilot.model.pilot import IDLE, Pilot, PilotSettings
+from viena.services.pilot.model.precision import PrecisionSettings
 from viena.services.pilot.model.route import RouteError
 from viena.services.pilot.model.safety import SafetySettings
 from viena.services.pilot.model.state import PATH, STATE, path_sample
@@ -74,6 +75,8 @@ class PilotServiceSettings:
                                 choices=("put", "query"))
     tracking: TrackingSettings = part(TrackingSettings, "turning the route into a wheel angle (model/tracking.py)")
     safety: SafetySettings = part(SafetySettings, "when to refuse or stop (model/safety.py)")
+    precision: PrecisionSettings = part(PrecisionSettings, "which GNSS solution it follows with "
+                                                           "(model/precision.py)")
 
 
 class PilotService(Service):
@@ -93,7 +96,7 @@ class PilotService(Service):
         if not 20.0 <= s.setpoint_rate_hz <= 50.0:
             raise ConfigError(f"[pilot] setpoint_rate_hz must be within 20..50, got {s.setpoint_rate_hz:g}")
         try:
-            self.pilot = Pilot(PilotSettings(tracking=s.tracking, safety=s.safety))
+            self.pilot = Pilot(PilotSettings(tracking=s.tracking, safety=s.safety, precision=s.precision))
         except ValueError as exc:
             raise ConfigError(f"[pilot]: {exc}") from None
         self.client = SteeringClient(self.session, self.keys.car, timeout_s=s.arm_timeout_s)
@@ -106,6 +109,7 @@ class PilotService(Service):
         self._state_pub = self.publisher(self.keys.key("pilot", "state"), STATE)
         self._path_pub = self.publisher(self.keys.key("pilot", "path"), PATH)
         self._path_due = math.inf                     # when to publish the route again
+        self._precise: bool | None = None             # the precision rule's verdict, as last logged
         for kind in (ROUTE, CMD):
             key = self.keys.key("pilot", kind)
             self.declare_queryable(key, self.inbox.on_query(kind, key, USAGE[kind]))
@@ -372,6 +376,15 @@ class PilotService(Service):
             self.health.mark_sample()
         self.health.set("mode", state["mode"])
         self.health.set("reason", state["reason"])
+        self.health.set("precision", "ok" if state["precision_ok"] else state["precision_reason"])
+        rule = self.settings.precision
+        if state["precision_ok"] != self._precise and rule.min_solution != "none":
+            self._precise = state["precision_ok"]
+            if self._precise:
+                self.log.info("precision: %s is good enough to follow by", state["precision_kind"])
+            else:
+                self.log.warning("precision: %s (%s)", state["precision_reason"],
+                                 "stops the pilot" if rule.on_imprecise == "stop" else "warning only")
 
 
 USAGE = {

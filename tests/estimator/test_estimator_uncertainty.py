@@ -57,12 +57,12 @@ def test_with_white_errors_the_uncertainty_is_honest_not_just_large():
     inside, nees, est = coverage(Drive(duration_s=60.0, seed=3, sensors="white"), every=4)
     assert inside >= 0.9
     assert 1.0 < nees < 3.5                 # 2 for an honest 2-D estimate
-    assert est.gnss.white["gnss0"].horizontal > 0.6     # learnt: the fixes jump about
+    assert est.gnss.white["gnss0", "single"].horizontal > 0.6     # learnt: the fixes jump about
 
 
 def test_the_twins_fixes_are_learnt_to_wander_not_to_jump():
     _, _, est = coverage(Drive(duration_s=40.0, seed=2))
-    share = est.gnss.white["gnss0"]
+    share = est.gnss.white["gnss0", "single"]
     assert share.n > 200 and share.horizontal <= 0.15 and share.vertical <= 0.15
 
 

@@ -20,6 +20,7 @@ from viena.common.rotation import wrap_angle
 from viena.common.settings import part
 from viena.services.pilot.model.estimate import Estimate
 from viena.services.pilot.model.path import Path, Projection
+from viena.services.pilot.model.precision import Precision, PrecisionSettings
 from viena.services.pilot.model.route import Route, RouteError, distance_to_route_m
 from viena.services.pilot.model.safety import SafetySettings, estimate_problem, start_problem, tracking_problem
 from viena.services.pilot.model.tracking import TRACKERS, Command, TrackingSettings
@@ -41,6 +42,7 @@ class PilotSettings:
     """[pilot]: tracking and safety (the model's; the service adds its rates)."""
     tracking: TrackingSettings = part(TrackingSettings, "turning the route into a wheel angle")
     safety: SafetySettings = part(SafetySettings, "when to refuse or stop")
+    precision: PrecisionSettings = part(PrecisionSettings, "which GNSS solution it follows with")
 
 
 class Pilot:
@@ -53,6 +55,7 @@ class Pilot:
             raise ValueError(f"max_start_offset_m ({safety.max_start_offset_m:g}) must be above 0 and "
                              f"below max_cross_track_m ({safety.max_cross_track_m:g}): a start "
                              f"allowed there would stop at once")
+        self.precision = Precision(self.settings.precision)     # ValueError if its settings are wrong
         self.mode = IDLE
         self.reason: str | None = None
         self.route: Route | None = None
@@ -128,9 +131,12 @@ class Pilot:
     def tick(self, now_ns: int) -> float | None:
         """The wheel angle to command now (rad, positive left), or None."""
         self._locate(now_ns)
+        self.precision.judge(self.estimate, now_ns)
         if self.mode != "following":
             return None
         why = estimate_problem(self.estimate, now_ns, self.settings.safety)
+        if why is None and self.precision.stops:
+            why = self.precision.reason
         if why is None and self.where is None:
             why = "lost the route"
         if why is None:
@@ -187,6 +193,9 @@ class Pilot:
         why = estimate_problem(self.estimate, now_ns, self.settings.safety)
         if why is not None:
             return why
+        self.precision.judge(self.estimate, now_ns)
+        if self.precision.stops:
+            return self.precision.reason
         self.where = None                       # find the car afresh, from the route's start
         self._locate(now_ns)
         safety, length = self.settings.safety, self._path.length_m
@@ -229,6 +238,7 @@ class Pilot:
             "lookahead_m": None, "target_enu_m": None, "route_speed_mps": None,
             "estimate_age_s": None if est is None else (now_ns - est.t_ns) * 1e-9,
             "setpoints": self.setpoints,
+            **self.precision.report(),
         }
         if path is None or where is None or est is None:
             return state

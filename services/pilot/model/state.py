@@ -5,7 +5,8 @@ degrees too), distances in m. Signs: `cross_track_m` > 0 when the car is left of
 route; the heading errors are the way to go minus the car's compass heading, +-180 deg,
 > 0: turn right (the Titans' convention, docs/pilot.md#keys-and-state); `wheel_cmd_deg` > 0 left
 (the steering's convention). Fields about the route and the car are null when there is
-no route or no usable estimate.
+no route or no usable estimate. Issue 28 added the precision rule's fields as optional
+ones, so the name stays /1 (docs/dataflow.md#samples).
 """
 from __future__ import annotations
 
@@ -37,6 +38,11 @@ STATE = Schema("viena.pilot.state/1", {
     "route_speed_mps": F.optional(F.float),        # the route's advised speed here (the person drives)
     "estimate_age_s": F.optional(F.float),
     "setpoints": F.int,                            # setpoints sent since start
+    # the precision rule (issue 28, model/precision.py; optional: older states lack them)
+    "precision_ok": F.optional(F.bool),            # the GNSS solution is good enough to follow by
+    "precision_kind": F.optional(F.str),           # the solution kind judged (the estimate's gnss_kind)
+    "precision_diff_age_s": F.optional(F.float),   # ... and its corrections' age
+    "precision_reason": F.optional(F.str),         # why not good enough
 })
 
 
@@ -78,4 +84,17 @@ def monitor_view(state: dict) -> dict[str, str]:
                  f"turn {fmt_num(state.get('checkpoint_heading_error_deg'), 1)}°"),
         "cross-track": fmt_unit(state.get("cross_track_m"), "m"),
         "wheel": "-" if wheel is None else f"{wheel:.1f}°",
+        **_precision_view(state),
     }
+
+
+def _precision_view(state: dict) -> dict:
+    """The solution judged, and when it is not good enough, why (asking to be noticed)."""
+    kind = state.get("precision_kind")
+    if not isinstance(kind, str):
+        return {}
+    age = number(state.get("precision_diff_age_s"))
+    text = kind + ("" if age is None else f", corrections {age:.1f} s old")
+    if state.get("precision_ok") is False:
+        return {"solution": Alert(f"{text}: {state.get('precision_reason') or 'not good enough'}")}
+    return {"solution": text}
