@@ -9,9 +9,16 @@ check failed (a WARN does not fail).
     can        the steering's CAN interface: present, up, at the configured bitrate
     keys       on a TLS profile: a valid certificate for every program (and the router)
     router     a zenoh session with the router the profile's clients use
-    programs   when the profile is up: every program RUNNING
+    programs   when the profile is up: every program RUNNING (those it leaves off, like
+               viena-ntrip without `up --rtk`, STOPPED)
     clock      synchronised (timedatectl, else chronyc), and the host's offset from GNSS
                time in live fixes (`t_host` against `t` of viena.gnss.fix/1)
+    receivers  from each GNSS unit's health: the receiver's model, firmware and the
+               correction formats it takes, and whether it refused the configured one
+    ntrip      with the corrections chain (the profile up with --rtk, or `doctor --rtk`)
+               and an [ntrip] caster: its credentials file, that the caster answers with
+               its source table, and that the mountpoint is in it (else the nearest and
+               the likest names it lists)
     disk       free space where recordings go (--recordings) and where logs go
 
 The profile's settings are read as its programs read them (the service's settings
@@ -21,6 +28,7 @@ device moved by VIENA_GNSS0_DEVICE is checked where it now is.
 from __future__ import annotations
 
 import argparse
+import difflib
 import json
 import os
 import platform
@@ -43,7 +51,9 @@ OK, WARN, FAIL = "OK", "WARN", "FAIL"
 DISK_FAIL_BYTES = 1e9
 DISK_WARN_BYTES = 5e9
 ROUTER_TIMEOUT_S = 3.0
-FIX_WAIT_S = 3.0
+FIX_WAIT_S = 3.0                    # fixes and GNSS health are listened to this long
+NTRIP_TIMEOUT_S = 5.0               # for the caster's answer and its source table
+MOUNTPOINTS_SHOWN = 3               # of a caster's mountpoints, when the configured one is not listed
 OFFSET_WARN_S = 0.2                 # above the serial link's own latency
 OFFSET_FAIL_S = 1.0
 _PROGRAM_COMMAND = re.compile(r"^\[program:([^\]]+)\]\s*\ncommand\s*=\s*(.+)$", re.M)
@@ -90,7 +100,9 @@ def program_settings(program: Program, toml: dict, settings_path: str):
     """The settings the program runs with, read by its own service class."""
     from viena.settings import services
 
-    cls = services()[program.service]
+    cls = services().get(program.service)
+    if cls is None:
+        raise ConfigError(f"no viena service '{program.service}' (viena/services/{program.service}/service.py)")
     unit = program.unit or cls.default_unit
     return cls.read_settings(toml, unit, argparse.Namespace(config=settings_path))
 
@@ -236,11 +248,18 @@ def check_router(connect: list[str], keys: str | None, car: str, identity: str |
 def check_programs(profile: str) -> Check:
     from viena.programs import rpc
 
-    infos = rpc(profile).getAllProcessInfo()
-    bad = [f"{i['name']} {i['statename']}" for i in infos if i["statename"] != "RUNNING"]
+    supervisor = rpc(profile)
+    infos = supervisor.getAllProcessInfo()
+    # a program the profile leaves off (autostart false: viena-ntrip without `up --rtk`) and
+    # never started is as it should be
+    off = sorted(c["name"] for c in supervisor.getAllConfigInfo() if not c.get("autostart", True))
+    left_off = sorted(i["name"] for i in infos if i["name"] in off and i["statename"] == "STOPPED")
+    bad = [f"{i['name']} {i['statename']}" for i in infos
+           if i["statename"] != "RUNNING" and i["name"] not in left_off]
     if bad:
         return Check(FAIL, "programs", f"{', '.join(bad)}: `viena logs NAME`, then `viena restart NAME`")
-    return Check(OK, "programs", f"{len(infos)} running")
+    running = len(infos) - len(left_off)
+    return Check(OK, "programs", f"{running} running" + (f", {', '.join(left_off)} off" if left_off else ""))
 
 
 def check_clock() -> Check:
@@ -274,20 +293,43 @@ def gnss_offsets(fixes: list[dict]) -> dict[str, float]:
     return {unit: statistics.median(values) for unit, values in sorted(by_unit.items())}
 
 
-def check_gnss_offset(session, car: str, wait_s: float = FIX_WAIT_S) -> Check:
+@dataclass
+class Heard:
+    """What the GNSS units said while the doctor listened: their fixes, and the newest
+    health of each (by unit)."""
+
+    fixes: list[dict]
+    health: dict[str, dict]
+
+
+def listen_gnss(session, car: str, wait_s: float = FIX_WAIT_S) -> Heard:
+    from viena.common.health import HEALTH
     from viena.services.gnss.model.fix import FIX
 
-    fixes: list[dict] = []
+    heard = Heard([], {})
 
     def on_fix(sample) -> None:
         try:
-            fixes.append(FIX.decode(sample.payload.to_bytes()))
+            heard.fixes.append(FIX.decode(sample.payload.to_bytes()))
         except InputError:
             pass
-    sub = session.declare_subscriber(f"viena/{car}/gnss/*/fix", on_fix)
+
+    def on_health(sample) -> None:
+        try:
+            health = HEALTH.decode(sample.payload.to_bytes())
+        except InputError:
+            return
+        heard.health[str(sample.key_expr).split("/")[-2]] = health
+    subs = [session.declare_subscriber(f"viena/{car}/gnss/*/fix", on_fix),
+            session.declare_subscriber(f"viena/{car}/gnss/*/health", on_health)]
     time.sleep(wait_s)
-    sub.undeclare()
-    offsets = gnss_offsets(list(fixes))
+    for sub in subs:
+        sub.undeclare()
+    return Heard(list(heard.fixes), dict(heard.health))
+
+
+def check_gnss_offset(fixes: list[dict], wait_s: float = FIX_WAIT_S) -> Check:
+    offsets = gnss_offsets(fixes)
     if not offsets:
         why = "no fixes" if not fixes else "fixes without receiver time (no GNSS time yet)"
         return Check(WARN, "clock vs GNSS", f"not measured: {why} in {wait_s:g} s")
@@ -298,6 +340,118 @@ def check_gnss_offset(session, car: str, wait_s: float = FIX_WAIT_S) -> Check:
         return Check(FAIL, "clock vs GNSS", f"{text}: the host clock is off; recordings and the "
                      f"estimator need it right (docs/deployment.md, clock)")
     return Check(WARN if abs(worst) >= OFFSET_WARN_S else OK, "clock vs GNSS", text)
+
+
+def check_receivers(health: dict[str, dict]) -> list[Check]:
+    """Per GNSS unit, what its health says of the receiver (NovAtel: from its VERSION
+    log): model, firmware, RTK option, the correction formats it takes, the format it
+    is given and whether it refused it."""
+    checks = []
+    for unit, sample in sorted(health.items()):
+        state = sample.get("state") if isinstance(sample.get("state"), dict) else {}
+        model, firmware = state.get("receiver_model"), state.get("receiver_firmware")
+        given, refused = state.get("corrections") or "", state.get("corrections_refused") or ""
+        if not model and not state.get("receiver_version_error") and not given:
+            continue                    # a receiver that says nothing of itself (NMEA, older service)
+        what = f"receiver {unit}"
+        if not model:
+            said = f"model unknown ({state.get('receiver_version_error') or 'no VERSION'})"
+        else:
+            said = f"{model}, firmware {firmware or '?'}"
+            if state.get("receiver_rtk"):
+                said += f", RTK {state['receiver_rtk']}"
+            formats = state.get("receiver_formats")
+            said += f"; takes {', '.join(map(str, formats)) if formats else 'no corrections'}"
+        if given:
+            said += f"; given {given}" + (f" ({state['corrections_state']})" if state.get("corrections_state") else "")
+        if refused:
+            checks.append(Check(FAIL, what, f"{said}: refused: {refused}"))
+        elif not model and given:
+            checks.append(Check(WARN, what, f"{said}: whether it takes {given} is not known"))
+        else:
+            checks.append(Check(OK, what, said))
+    return checks
+
+
+#: what to do when the caster does not answer, by the NTRIP driver's failure kind
+_CASTER_HINTS = {
+    "connection_refused": "nothing listens there: the caster is down, or [ntrip] port is wrong "
+                          "(casters listen on 2101; with TLS often 443 or 2102)",
+    "unreachable": "wrong [ntrip] caster, or no route to it: is this machine online?",
+    "tls_errors": "check [ntrip] tls and ca_file: does the caster speak TLS on this port?",
+    "unauthorized": "the caster wants a login even for its source table: [ntrip] credentials",
+    "not_ntrip": "something that is not an NTRIP caster answers there: check [ntrip] caster and port",
+    "dropped": "the caster closed the connection: down or overloaded? try again",
+}
+
+
+def check_ntrip(settings, car: str, position: tuple[float, float] | None = None,
+                twin_in_profile: bool = False, timeout_s: float = NTRIP_TIMEOUT_S) -> list[Check]:
+    """The NTRIP client's settings against its caster, one line each: the credentials
+    file, the caster answering with its source table, the mountpoint in it. `position`
+    (lat, lon): the car's, for the distances to the bases."""
+    from viena.services.ntrip.driver import (
+        CasterAddress,
+        CredentialsError,
+        LinkError,
+        fetch_sourcetable,
+        read_credentials,
+    )
+    from viena.services.ntrip.driver.credentials import default_path
+    from viena.services.ntrip.driver.sourcetable import by_distance, mountpoints
+
+    address = CasterAddress(settings.caster, settings.port, settings.mountpoint, settings.ntrip_version, settings.tls,
+                            str(Path(settings.ca_file).expanduser()) if settings.ca_file else "")
+    checks, credentials = [], None
+    if settings.credentials.lower() != "none":
+        path = Path(settings.credentials).expanduser() if settings.credentials else default_path(car)
+        try:
+            credentials = read_credentials(path)
+            checks.append(Check(OK, f"ntrip credentials {path}", "one login, readable by its owner only"))
+        except CredentialsError as exc:
+            if twin_in_profile and not path.exists():
+                checks.append(Check(WARN, f"ntrip credentials {path}", "not there yet: the caster's twin "
+                                    "writes it when it starts"))
+            else:
+                checks.append(Check(FAIL, f"ntrip credentials {path}", f"{exc} (viena-ntrip will not start)"))
+    caster = f"ntrip caster {address.caster}" + (" (TLS)" if address.tls else "")
+    mount = f"ntrip mountpoint {address.mountpoint}"
+    try:
+        table = mountpoints(fetch_sourcetable(address, credentials, timeout_s))
+    except LinkError as exc:
+        hint = _CASTER_HINTS.get(exc.kind, "")
+        if twin_in_profile and exc.kind == "connection_refused":
+            hint = "the caster's twin is not up: `viena up --rtk`"
+        checks.append(Check(FAIL, caster, f"{exc.why}" + (f": {hint}" if hint else "")))
+        checks.append(Check(WARN, mount, "not checked: the caster gave no source table"))
+        return checks
+    checks.append(Check(OK, caster, f"answers NTRIP {address.version}: {len(table)} mountpoint"
+                                    f"{'s' if len(table) != 1 else ''} in its source table"))
+    distances = by_distance(table, *position) if position else [(m, None) for m in table]
+    for entry, km in distances:
+        if entry.name == address.mountpoint:
+            where = f", {km:.1f} km from the car" if km is not None else ""
+            gga = "; wants the car's position (gga_interval_s > 0)" if entry.wants_gga else ""
+            warn = entry.wants_gga and not settings.gga_interval_s > 0
+            checks.append(Check(WARN if warn else OK, mount, f"listed: {entry.format or '?'} "
+                                f"({entry.details or '-'}), {entry.nav_systems or '?'}{where}{gga}"))
+            return checks
+    listed = ", ".join(m.name if km is None else f"{m.name} ({km:.{1 if km < 10 else 0}f} km)"
+                       for m, km in distances[:MOUNTPOINTS_SHOWN])
+    likest = difflib.get_close_matches(address.mountpoint, [m.name for m in table], n=MOUNTPOINTS_SHOWN, cutoff=0.5)
+    said = f"not in the caster's source table; {'nearest' if position else 'it lists'}: {listed or 'none'}"
+    if likest:
+        said += f"; names like it: {', '.join(likest)}"
+    checks.append(Check(FAIL, mount, f"{said} (`viena ntrip sources {address.caster}`)"))
+    return checks
+
+
+def car_position(fixes: list[dict]) -> tuple[float, float] | None:
+    """The median (lat, lon) of the valid fixes heard, or None."""
+    valid = [(f["lat_deg"], f["lon_deg"]) for f in fixes if f.get("valid") is True]
+    if not valid:
+        return None
+    return statistics.median(lat for lat, _ in valid), statistics.median(lon for _, lon in valid)
 
 
 def check_disk(name: str, path: Path) -> Check:
@@ -320,6 +474,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         help="the car's key store (default $VIENA_KEYS, else ~/.config/viena/keys/CAR)")
     parser.add_argument("--recordings", type=Path, default=Path.cwd(), metavar="DIR",
                         help="where recordings will be written (default: here)")
+    parser.add_argument("--rtk", action="store_true",
+                        help="check the corrections chain as `viena up --rtk` runs it (the NTRIP caster); "
+                             "a profile up with --rtk is checked so anyway")
     return parser
 
 
@@ -345,6 +502,8 @@ def diagnose(args: argparse.Namespace) -> list[Check]:
     except compose.ComposeError as exc:
         return checks + [Check(FAIL, "profile", str(exc))]
     env, up = profile_environment(profile)
+    if getattr(args, "rtk", False) and not up:
+        env.update(compose.rtk_environment(env))
     os.environ.update(env)                         # the profile's settings read them
     programs = profile_programs(conf)
     try:
@@ -355,6 +514,7 @@ def diagnose(args: argparse.Namespace) -> list[Check]:
     checks.append(Check(OK, "profile", f"{profile} ({'up' if up else 'not up'}): "
                         f"{', '.join(p.name for p in programs)}"))
 
+    ntrip = None                                   # the NTRIP client's settings, if it runs
     for program in programs:
         if program.service is None:
             continue
@@ -363,7 +523,9 @@ def diagnose(args: argparse.Namespace) -> list[Check]:
         except ConfigError as exc:
             checks.append(Check(FAIL, f"settings {program.name}", str(exc)))
             continue
-        if program.service in ("gnss", "imu"):
+        if program.service == "ntrip":
+            ntrip = settings
+        elif program.service in ("gnss", "imu"):
             checks.append(check_serial(program.name, settings.port))
         elif program.service == "steering":
             drive = settings.drive
@@ -393,12 +555,24 @@ def diagnose(args: argparse.Namespace) -> list[Check]:
     if up:
         checks.append(check_programs(profile))
     checks.append(check_clock())
+    heard = Heard([], {})
     if session is not None:
         try:
             if any(p.service == "gnss" for p in programs) or up:
-                checks.append(check_gnss_offset(session, car))
+                heard = listen_gnss(session, car)
+                checks.append(check_gnss_offset(heard.fixes))
         finally:
             session.close()
+    checks += check_receivers(heard.health)
+    if ntrip is not None:
+        if env.get("VIENA_RTK") != "true":
+            checks.append(Check(OK, "ntrip", "off: the profile runs without corrections (`viena up --rtk`; "
+                                "`viena doctor --rtk` checks the caster)"))
+        elif not ntrip.caster:
+            checks.append(Check(FAIL, "ntrip", "no caster: give it in the profile's settings ([ntrip] caster)"))
+        else:
+            checks += check_ntrip(ntrip, car, car_position(heard.fixes),
+                                  twin_in_profile=any(p.name == "caster" for p in programs))
     checks.append(check_disk("disk (recordings)", args.recordings))
     checks.append(check_disk("disk (logs)", run_dir(profile)))
     return checks

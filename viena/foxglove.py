@@ -6,7 +6,8 @@ other laptop tools) and serves it with the Foxglove SDK's WebSocket server: open
 JSON channel whose JSON Schema comes from viena's own schema, so any numeric field can be
 plotted; GNSS receivers, the estimator and the simulated truth are also
 `foxglove.LocationFix` (Map panel), `PoseInFrame` and `FrameTransform` (3D panel, frames
-`enu` -> `car`, `car_truth`), services' health errors become `foxglove.Log`, and the
+`enu` -> `car`, `car_truth`), each receiver's solution type and correction age and the
+NTRIP client's link are JSON status channels, services' health errors become `foxglove.Log`, and the
 route the pilot holds (pilot/path) is `foxglove.GeoJSON` (Map panel) and a SceneUpdate
 line in `enu` (3D panel) (viena/foxglove_messages.py has the table).
 

@@ -16,7 +16,7 @@ import foxglove
 import foxglove.channels
 
 from viena.common.errors import SampleError
-from viena.foxglove_messages import STATEFUL_KINDS, Converter, Route
+from viena.foxglove_messages import JSON_KINDS, STATEFUL_KINDS, Converter, Route, json_bytes
 
 #: channel metadata: the zenoh encoding the key's samples came with
 ENCODING_METADATA = "viena_encoding"
@@ -75,7 +75,8 @@ class FoxgloveChannels:
         if not channels.keeps_state and not channels.derived_watched():
             return True
         for derived in self.converter.derived(channels.route, value):
-            channels.derived[derived.topic].log(derived.message, log_time=log_time)
+            message = json_bytes(derived.message) if derived.kind in JSON_KINDS else derived.message
+            channels.derived[derived.topic].log(message, log_time=log_time)
             self.logged += 1
         return True
 
@@ -90,7 +91,10 @@ class FoxgloveChannels:
         channels = _KeyChannels(route, json_channel)
         for topic, kind in route.topics:
             typed = self._typed.get(topic)
-            if typed is None:
+            if typed is None and kind in JSON_KINDS:
+                typed = self._typed[topic] = foxglove.Channel(topic, schema=JSON_KINDS[kind].schema,
+                                                              context=self.context)
+            elif typed is None:
                 make = getattr(foxglove.channels, f"{kind}Channel")
                 typed = self._typed[topic] = make(topic, context=self.context)
             channels.derived[topic] = typed

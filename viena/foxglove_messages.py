@@ -8,6 +8,8 @@ something Foxglove's panels understand (`Converter.derived`), under `viena/<car>
 | from | topic | Foxglove schema |
 |---|---|---|
 | `gnss/<unit>/fix` (valid fixes) | `foxglove/gnss/<unit>/location` | `foxglove.LocationFix` (the antenna) |
+| `gnss/<unit>/fix` (every fix) | `foxglove/gnss/<unit>/status` | JSON `viena.foxglove.gnss_status/1` |
+| `ntrip/state` | `foxglove/ntrip/status` | JSON `viena.foxglove.ntrip_status/1` |
 | `estimator/state` | `foxglove/estimator/location` | `foxglove.LocationFix`, full ENU covariance |
 | `estimator/state` | `foxglove/estimator/pose` | `foxglove.PoseInFrame` in frame `enu` |
 | `sim/truth` | `foxglove/sim/truth/location`, `.../pose` | as above |
@@ -15,6 +17,10 @@ something Foxglove's panels understand (`Converter.derived`), under `viena/<car>
 | `<service>/health` | `foxglove/log` | `foxglove.Log`, when an error counter grows |
 | `pilot/path` | `foxglove/pilot/route` | `foxglove.GeoJSON`: the route's line and its checkpoints |
 | `pilot/path` | `foxglove/pilot/scene` | `foxglove.SceneUpdate`: the route as a line in frame `enu` |
+
+The status messages say on one channel what a person asks of a receiver (its solution
+type and kind, the age of its corrections, the base station) and of the corrections link
+(streaming or why not, bytes a second, how fresh).
 
 Frames: `enu` is viena's local ENU world (x East, y North, z Up) at the estimator's or the
 simulator's origin (the same configured origin on the car); `car` and `car_truth` are the
@@ -55,10 +61,11 @@ from foxglove.messages import (
     Vector3,
 )
 
+from viena.common.display import CORRECTIONS_STALE_S, number
 from viena.common.geodesy import LocalFrame
 from viena.common.json_schema import JsonForm
 from viena.common.payload import to_jsonable
-from viena.common.schema import Schema, schema_of
+from viena.common.schema import F, Schema, schema_of
 from viena.recording import decode_value
 from viena.services.pilot.model.path import checkpoints_enu
 
@@ -66,13 +73,14 @@ from viena.services.pilot.model.path import checkpoints_enu
 SCHEMA_OWNERS = ("viena.services.gnss.model.fix", "viena.services.imu.model.sample",
                  "viena.services.steering.model.state", "viena.services.estimator.state",
                  "viena.services.sim.model.truth", "viena.services.pilot.model.state",
-                 "viena.common.health")
+                 "viena.services.ntrip.model.state", "viena.common.health")
 for _owner in SCHEMA_OWNERS:
     importlib.import_module(_owner)
 
 from viena.common.health import HEALTH  # noqa: E402  (after the owners, for one import list)
 from viena.services.estimator.state import STATE  # noqa: E402
-from viena.services.gnss.model.fix import FIX, NO_FIX_ECEF  # noqa: E402
+from viena.services.gnss.model.fix import FIX, NO_FIX_ECEF, SOLUTION_KINDS, solution_kind, solution_rank  # noqa: E402
+from viena.services.ntrip.model.state import STATE as NTRIP_STATE  # noqa: E402
 from viena.services.pilot.model.state import PATH  # noqa: E402
 from viena.services.sim.model.truth import TRUTH  # noqa: E402
 
@@ -96,6 +104,45 @@ CHECKPOINT_SIZE_M = 0.6
 #: a receiver's local frame (for its velocity and covariance in ENU) is made anew this far away
 FRAME_REUSE_M = 1000.0
 
+
+#: The status channels' messages: JSON, described by viena schemas like every key's
+#: channel, so Foxglove plots any field (`.kind_level`, `.diff_age_s`) and a State
+#: Transitions panel shows `.pos_type` or `.state`; `text` says it all on one line.
+GNSS_STATUS = Schema("viena.foxglove.gnss_status/1", {
+    "t": F.time,                        # the fix's epoch
+    "unit": F.str,
+    "valid": F.bool,
+    "pos_status": F.str,
+    "pos_type": F.str,                  # NovAtel's name: SINGLE, PSRDIFF, NARROW_FLOAT, NARROW_INT ...
+    "kind": F.enum(*SOLUTION_KINDS),    # its class (services/gnss/model/fix.py)
+    "kind_level": F.int,                # the kind's place in SOLUTION_KINDS: 0 none ... 5 fixed
+    "diff_age_s": F.optional(F.float),  # age of the corrections in the solution, when it uses any
+    "sol_age_s": F.optional(F.float),
+    "base_id": F.optional(F.str),
+    "sats_used": F.optional(F.int),
+    "sats_tracked": F.optional(F.int),
+    "sigma_h_m": F.optional(F.float),   # the larger of the east and north sigmas (valid fixes)
+    "sigma_v_m": F.optional(F.float),   # the up sigma
+    "text": F.str,                      # e.g. "NARROW_INT (fixed), diff age 1.0 s, base 0042, 12/14 sats"
+})
+NTRIP_STATUS = Schema("viena.foxglove.ntrip_status/1", {
+    "t": F.time,
+    "caster": F.str,
+    "mountpoint": F.str,
+    "state": F.str,                     # connecting, streaming, waiting, refused, stopped
+    "connected": F.bool,
+    "stale": F.bool,                    # not streaming, or its last message older than CORRECTIONS_STALE_S
+    "why": F.optional(F.str),
+    "bytes_per_s": F.optional(F.float),
+    "last_message_age_s": F.optional(F.float),
+    "next_attempt_s": F.optional(F.float),
+    "base_id": F.optional(F.str),
+    "types": F.list(F.int),             # RTCM message numbers seen since the client started
+    "frames": F.int,                    # of them, in all
+    "text": F.str,
+})
+#: derived kinds that are JSON messages (the others are foxglove.channels classes)
+JSON_KINDS = {"GnssStatus": JsonForm(GNSS_STATUS), "NtripStatus": JsonForm(NTRIP_STATUS)}
 
 #: kinds whose conversion keeps what other channels need: the estimator's origin (the
 #: route's 3D line is drawn in its ENU frame) and each service's error counts (its Log
@@ -127,7 +174,8 @@ class Route:
 class Derived:
     """A Foxglove message derived from a sample: its topic, its kind (`LocationFix`,
     `PoseInFrame`, `FrameTransform`, `Log`, `GeoJson`, `SceneUpdate`: the name of its
-    foxglove.channels class without `Channel`), and the message."""
+    foxglove.channels class without `Channel`; or a JSON_KINDS name, whose message is a
+    map its JsonForm describes), and the message."""
 
     topic: str
     kind: str
@@ -157,7 +205,7 @@ class Converter:
     estimator's origin (for the route in `enu`)."""
 
     def __init__(self):
-        self._forms: dict[str, JsonForm] = {}
+        self._forms: dict[str, JsonForm | None] = {}
         self._errors: dict[str, dict[str, int]] = {}
         self._frames: dict[str, LocalFrame] = {}
         self._colours: dict[str, Color] = {}
@@ -168,14 +216,17 @@ class Converter:
         schema = schema_of(encoding)
         kind = _derived_kind(schema)
         parts = key.split("/")
-        form = None if schema is None else self._forms.setdefault(schema.name, JsonForm(schema))
+        form = None if schema is None else self._form(schema)
         if len(parts) < 3 or parts[0] != "viena":
             return Route(key, encoding, schema, "", [], form)
         root, local = f"viena/{parts[1]}/foxglove", parts[2:]
         tf = (f"{root}/tf", "FrameTransform")
         topics: list[tuple[str, str]] = []
         if kind == "fix" and len(local) == 3:
-            topics = [(f"{root}/gnss/{local[1]}/location", "LocationFix")]
+            topics = [(f"{root}/gnss/{local[1]}/location", "LocationFix"),
+                      (f"{root}/gnss/{local[1]}/status", "GnssStatus")]
+        elif kind == "ntrip":
+            topics = [(f"{root}/ntrip/status", "NtripStatus")]
         elif kind == "estimator":
             topics = [(f"{root}/estimator/location", "LocationFix"), (f"{root}/estimator/pose", "PoseInFrame"), tf]
         elif kind == "truth":
@@ -185,6 +236,16 @@ class Converter:
         elif kind == "path":
             topics = [(f"{root}/pilot/route", "GeoJson"), (f"{root}/pilot/scene", "SceneUpdate")]
         return Route(key, encoding, schema, kind if topics else "", topics, form)
+
+    def _form(self, schema: Schema) -> JsonForm | None:
+        """The schema's JSON form; None (schemaless JSON) for a schema with a field no plain
+        JSON type describes (raw bytes): its samples are still checked and sent."""
+        if schema.name not in self._forms:
+            try:
+                self._forms[schema.name] = JsonForm(schema)
+            except ValueError:
+                self._forms[schema.name] = None
+        return self._forms[schema.name]
 
     @staticmethod
     def decode(route: Route, data: bytes) -> Any:
@@ -199,8 +260,13 @@ class Converter:
         if not kind or not isinstance(sample, dict):
             return []
         if kind == "fix":
-            fix = self.gnss_location(sample, topics[0][0].split("/")[-2])
-            return [] if fix is None else [Derived(topics[0][0], "LocationFix", fix)]
+            unit = topics[0][0].split("/")[-2]
+            located = self._gnss_location(sample, unit)
+            status = Derived(topics[1][0], "GnssStatus",
+                             self.gnss_status(sample, unit, None if located is None else located[1]))
+            return [status] if located is None else [Derived(topics[0][0], "LocationFix", located[0]), status]
+        if kind == "ntrip":
+            return [Derived(topics[0][0], "NtripStatus", ntrip_status(sample))]
         if kind == "estimator":
             valid = sample.get("position_valid") is True
             if valid and sample.get("origin") is not None:
@@ -214,6 +280,11 @@ class Converter:
 
     def gnss_location(self, fix: dict, unit: str) -> LocationFix | None:
         """A valid fix as the antenna's LocationFix, its sigmas as an ENU covariance."""
+        located = self._gnss_location(fix, unit)
+        return None if located is None else located[0]
+
+    def _gnss_location(self, fix: dict, unit: str) -> tuple[LocationFix, list[float]] | None:
+        """The LocationFix of a valid fix, and its covariance (the message keeps it unreadable)."""
         if not fix["valid"] or tuple(fix["ecef_m"]) == NO_FIX_ECEF:
             return None
         lat, lon, h = fix["lat_deg"], fix["lon_deg"], fix["height_m"]
@@ -221,9 +292,11 @@ class Converter:
         enu_sigma = fix.get("enu_sigma_m")
         if enu_sigma is None and fix.get("sigma_h_m") is not None and fix.get("sigma_v_m") is not None:
             enu_sigma = (fix["sigma_h_m"], fix["sigma_h_m"], fix["sigma_v_m"])
-        if enu_sigma is not None:
+        if enu_sigma is not None:           # the receiver's own sigmas, squared as they came
             cov = [enu_sigma[0] ** 2, 0.0, 0.0, 0.0, enu_sigma[1] ** 2, 0.0, 0.0, 0.0, enu_sigma[2] ** 2]
-            cov_type = LocationFixPositionCovarianceType.DiagonalKnown
+            # NMEA sends no sigmas: its are DOPs times a guessed range error
+            cov_type = (LocationFixPositionCovarianceType.Approximated if fix.get("protocol") == "nmea"
+                        else LocationFixPositionCovarianceType.DiagonalKnown)
         else:                                # ECEF sigmas, their cross terms unknown
             cov = [float(v) for v in frame.cov_to_enu(fix["ecef_sigma_m"]).ravel()]
             cov_type = LocationFixPositionCovarianceType.Approximated
@@ -232,7 +305,33 @@ class Converter:
         colour = self._colours.setdefault(unit, GNSS_COLOURS[len(self._colours) % len(GNSS_COLOURS)])
         return LocationFix(timestamp=timestamp(fix["t"]), frame_id=unit, latitude=lat, longitude=lon,
                            altitude=h, position_covariance=cov, position_covariance_type=cov_type,
-                           velocity=velocity, color=colour)
+                           velocity=velocity, color=colour), cov
+
+    @staticmethod
+    def gnss_status(fix: dict, unit: str, enu_cov: list[float] | None = None) -> dict:
+        """What a fix says of its solution (any fix, valid or not), as a GNSS_STATUS
+        message without its nil fields; the sigmas from its location's ENU covariance."""
+        pos_type = str(fix.get("pos_type") or "SINGLE")
+        kind = solution_kind(pos_type)
+        status = {"t": fix["t"], "unit": unit, "valid": fix["valid"] is True,
+                  "pos_status": str(fix.get("pos_status") or ""), "pos_type": pos_type, "kind": kind,
+                  "kind_level": solution_rank(kind), "sats_used": fix.get("sats_used"),
+                  "sats_tracked": fix.get("sats_tracked"), "sol_age_s": number(fix.get("sol_age_s"))}
+        if kind not in ("none", "single"):          # a single solution's diff age (0) says nothing
+            status.update(diff_age_s=number(fix.get("diff_age_s")), base_id=fix.get("base_id") or None)
+        if enu_cov is not None:
+            status.update(sigma_h_m=math.sqrt(max(enu_cov[0], enu_cov[4])), sigma_v_m=math.sqrt(enu_cov[8]))
+        words = [f"{pos_type} ({kind})"]
+        if status.get("diff_age_s") is not None:
+            words.append(f"diff age {status['diff_age_s']:.1f} s")
+        if status.get("base_id"):
+            words.append(f"base {status['base_id']}")
+        if status["sats_used"] is not None:
+            words.append(f"{status['sats_used']}/{status['sats_tracked']} sats")
+        if status.get("sigma_h_m") is not None:
+            words.append(f"sigma {status['sigma_h_m']:.3f} m")
+        status["text"] = ", ".join(words)
+        return {k: v for k, v in status.items() if v is not None}
 
     def _frame(self, unit: str, ecef_m, lat: float, lon: float, h: float) -> LocalFrame:
         frame = self._frames.get(unit)
@@ -306,6 +405,35 @@ class Converter:
         return logs
 
 
+def ntrip_status(state: dict) -> dict:
+    """The NTRIP client's state (viena.ntrip.state/1) as an NTRIP_STATUS message without
+    its nil fields: streaming or why not, how much, from which base, how fresh."""
+    age = number(state.get("last_message_age_s"))
+    streaming = state.get("state") == "streaming"
+    messages = state.get("messages") if isinstance(state.get("messages"), dict) else {}
+    types = sorted(int(t) for t in messages if str(t).isdigit())
+    status = {"t": state["t"], "caster": state["caster"], "mountpoint": state["mountpoint"],
+              "state": state["state"], "connected": state["connected"] is True,
+              "stale": not streaming or age is None or age > CORRECTIONS_STALE_S,
+              "why": state.get("why") or None, "bytes_per_s": number(state.get("bytes_per_s")),
+              "last_message_age_s": age, "next_attempt_s": number(state.get("next_attempt_s")),
+              "base_id": state.get("base_id") or None, "types": types,
+              "frames": sum(v for v in messages.values() if type(v) is int)}
+    words = [f"{state['state']} {state['caster']}/{state['mountpoint']}"]
+    if status["why"]:
+        words[0] += f" ({status['why']})"
+    if status["bytes_per_s"] is not None:
+        words.append(f"{status['bytes_per_s']:.0f} B/s")
+    if types:
+        words.append("types " + ",".join(map(str, types)))
+    if status["base_id"]:
+        words.append(f"base {status['base_id']}")
+    if age is not None:
+        words.append(f"last message {age:.1f} s ago" + (" (STALE)" if age > CORRECTIONS_STALE_S else ""))
+    status["text"] = ", ".join(words)
+    return {k: v for k, v in status.items() if v is not None}
+
+
 def _marked_checkpoints(count: int) -> list[int]:
     """Which checkpoints get a mark of their own: all, or of a long route the ends."""
     return list(range(count)) if count <= MAX_CHECKPOINT_MARKS else [0, count - 1]
@@ -350,7 +478,7 @@ def route_scene(path: dict, origin: tuple[float, float, float]) -> SceneUpdate:
 
 
 def _derived_kind(schema: Schema | None) -> str:
-    kinds = {FIX: "fix", STATE: "estimator", TRUTH: "truth", HEALTH: "health", PATH: "path"}
+    kinds = {FIX: "fix", STATE: "estimator", TRUTH: "truth", HEALTH: "health", PATH: "path", NTRIP_STATE: "ntrip"}
     return kinds.get(schema, "") if schema else ""
 
 

@@ -2,7 +2,9 @@
 
 Services are found by their liveliness tokens (viena/<car>/alive/<service>[/<unit>]);
 each shows its health (rates, errors, last-sample age, reconnects). Below them: the GNSS
-fixes, the IMUs, the steering, the estimator, the pilot (its mode, cross-track, and the way
+fixes (each receiver's solution type and the age of its corrections), the NTRIP client
+(streaming or why not, bytes a second, the last message's age) and the corrections on the
+bus, the IMUs, the steering, the estimator, the pilot (its mode, cross-track, and the way
 to its next checkpoint) and the simulator's truth, then any other key. A service whose
 token disappears is shown as lost (at once when it stops; when it crashes, once zenoh's
 lease expires, 10 s by default); every value carries its age, and a value older than
@@ -16,9 +18,10 @@ width; only the newest payload per key is decoded, once a frame. What a panel sh
 sample is up to the module that owns its schema (its `monitor_view`, made of the pieces in
 viena.common.display): the monitor only lays it out, and colours what asks to be noticed:
 an Alert, and the words the car uses for trouble (NO FIX, tripped, fault, lost) in red,
-stale values in yellow. A service's error totals stay on screen but are red only while
-they grow: the column "errors/s" is their rate over the last RECENT_ERRORS_S. Until the
-router answers, the screen says which endpoint cannot be reached and why.
+stale values in yellow; corrections older than CORRECTIONS_STALE_S (common/display.py) are red. A service's
+error totals stay on screen but are red only while they grow: the column "errors/s" is
+their rate over the last RECENT_ERRORS_S. Until the router answers, the screen says which
+endpoint cannot be reached and why.
 """
 from __future__ import annotations
 
@@ -41,6 +44,8 @@ from viena.common.signals import stop_on_signals
 from viena.services.estimator.state import monitor_view as estimator_view
 from viena.services.gnss.model.fix import monitor_view as gnss_view
 from viena.services.imu.model.sample import monitor_view as imu_view
+from viena.services.ntrip.model.corrections import monitor_view as corrections_view
+from viena.services.ntrip.model.state import monitor_view as ntrip_view
 from viena.services.pilot.model.state import monitor_view as pilot_view
 from viena.services.sim.model.truth import monitor_view as truth_view
 from viena.services.steering.model.state import monitor_view as steering_view
@@ -52,6 +57,8 @@ REFRESH_HZ = 4.0
 RATE_WINDOW_S = 1.0
 POLL_S = 0.02                   # how often arrivals are taken (and so stamped)
 RECENT_ERRORS_S = 10.0          # errors/s is measured over this much of the latest health
+#: corrections older than this are stale: the receivers are about to fall back to a coarser
+#: solution (their RTK timeout is 60 s; float and fixed solutions degrade long before)
 #: words a view uses for trouble: shown in red wherever they stand alone in a cell
 ALARM_WORDS = re.compile(r"\b(NO FIX|tripped|FAULT|fault|lost)\b")
 
@@ -107,6 +114,8 @@ class View:
     car: str
     services: list[ServiceView]
     gnss: dict[str, Aged]
+    ntrip: Aged | None
+    corrections: Aged | None
     imu: dict[str, Aged]
     steering: Aged | None
     estimator: Aged | None
@@ -192,7 +201,7 @@ class MonitorModel:
     def view(self, now: float) -> View:
         services = [self._service_view(s, now) for _, s in sorted(self.services.items())]
         gnss, imu, others = {}, {}, []
-        steering = estimator = pilot = truth = None
+        steering = estimator = pilot = truth = ntrip = corrections = None
         for key, latest in sorted(self.latest.items()):
             parts = self._local(key)
             aged = self._aged(latest, now)
@@ -202,6 +211,10 @@ class MonitorModel:
                 gnss[parts[1]] = aged
             elif len(parts) == 3 and parts[0] == "imu" and parts[2] == "sample":
                 imu[parts[1]] = aged
+            elif parts == ["ntrip", "state"]:
+                ntrip = aged
+            elif parts == ["gnss", "corrections"]:
+                corrections = aged
             elif parts == ["steering", "state"]:
                 steering = aged
             elif parts == ["estimator", "state"]:
@@ -213,8 +226,8 @@ class MonitorModel:
             else:
                 others.append(aged)
         total = sum(a.rate_hz or 0.0 for a in (self._aged(x, now) for x in self.latest.values()))
-        return View(self.keys.car, services, gnss, imu, steering, estimator, pilot, truth, others,
-                    dict(self.bad), total)
+        return View(self.keys.car, services, gnss, ntrip, corrections, imu, steering, estimator, pilot, truth,
+                    others, dict(self.bad), total)
 
     def _service_view(self, s: ServiceState, now: float) -> ServiceView:
         status = {True: "alive", False: "lost", None: "no token"}[s.token]
@@ -301,16 +314,48 @@ def _service_rows(view: View):
     return table
 
 
-def _sample_rows(title: str, rows: dict[str, Aged], cells_of, label: str):
-    """One row per unit; columns are whatever the cells of any row name."""
+#: the widest an age cell grows ("STALE 1.10 s")
+_AGE_WIDTH = 12
+#: a cell this short is never wrapped ("NO FIX" stays on one line); a longer one wraps between words
+_WHOLE_CELL = 12
+
+
+def _narrowest(text: str) -> int:
+    """The narrowest a cell is drawn readably: whole if short, else its longest word."""
+    return max(min(len(text), _WHOLE_CELL), *(len(word) for word in text.split() or [""]))
+
+
+def _sample_rows(title: str, rows: dict[str, Aged], cells_of, label: str, width: int | None = None):
+    """One row per unit; columns are whatever the cells of any row name. A table that
+    would not fit `width` columns with its short cells whole and the others wrapped
+    between words (a receiver's ten columns on 80) becomes the name/value pairs of
+    `_field_rows`, one block per unit."""
+    from rich.console import Group
+
     cells = {unit: cells_of(aged.value) for unit, aged in rows.items()}
     columns = list(dict.fromkeys(c for row in cells.values() for c in row))
+    texts = [[label, *rows], *([c, *(row.get(c, "-") for row in cells.values())] for c in columns)]
+    narrowest = [max(map(_narrowest, column)) for column in texts] + [5, _AGE_WIDTH]
+    if width is not None and sum(narrowest) + 2 * (len(narrowest) - 1) > width:
+        per_row = max(1, min(4, width // 40))
+        return Group(*(_field_rows(f"{title} {unit}".strip(), aged, cells[unit], per_row)
+                       for unit, aged in rows.items()))
     table = _table(title, label, *columns, "Hz", "age")
+    for column, text in zip(table.columns, texts):
+        # a column of short cells is never wrapped: rich shrinks the others, between words
+        column.no_wrap = all(len(t) <= _WHOLE_CELL or " " not in t for t in text)
     for unit, aged in rows.items():
         style = "dim" if aged.stale else ""
         table.add_row(unit, *(_cell(cells[unit].get(c, "-"), style, c) for c in columns),
                       _rate(aged), _age_cell(aged))
     return table
+
+
+def corrections_cells(sample: dict) -> dict[str, str]:
+    """The corrections sample's view (its age is the monitor's own column)."""
+    cells = corrections_view(sample)
+    cells.pop("age", None)
+    return cells
 
 
 def _field_rows(title: str, aged: Aged, cells: dict[str, str], per_row: int = 4):
@@ -336,7 +381,12 @@ def render(view: View, title: str = "", width: int | None = None):
     per_row = 4 if width is None else max(1, min(4, width // 40))
     tables = [_service_rows(view)]
     if view.gnss:
-        tables.append(_sample_rows("GNSS", view.gnss, gnss_view, "unit"))
+        tables.append(_sample_rows("GNSS", view.gnss, gnss_view, "unit", width))
+    if view.ntrip:
+        tables.append(_sample_rows("NTRIP client", {"ntrip": view.ntrip}, ntrip_view, "", width))
+    if view.corrections:
+        tables.append(_sample_rows("corrections", {"gnss/corrections": view.corrections}, corrections_cells,
+                                   "key", width))
     if view.imu:
         tables.append(_sample_rows("IMU", view.imu, imu_view, "unit"))
     if view.steering:

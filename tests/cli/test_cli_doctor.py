@@ -125,7 +125,9 @@ def test_the_sim_profile_up_is_healthy(tmp_path):
         assert {"router", "sim", "gnss0", "gnss1", "razor0", "steering", "estimator"} <= set(names)
         assert checks["profile"] == (OK, f"sim (up): {', '.join(names)}")
         assert checks[f"router {router}"] == (OK, "reachable")
-        assert checks["programs"] == (OK, f"{len(names)} running")
+        off = ["caster", "ntrip"]                                    # the corrections chain: `up --rtk`
+        assert checks["programs"] == (OK, f"{len(names) - len(off)} running, {', '.join(off)} off")
+        assert checks["ntrip"][0] == OK and checks["ntrip"][1].startswith("off: the profile runs without corrections")
         devices = [name for name in checks if name.startswith(("gnss0 socket://", "razor0 socket://", "can slcan"))]
         assert len(devices) == 3 and all(checks[name] == (OK, "listening") for name in devices)
         # the simulated receivers stamp fixes with GNSS time from the host's clock

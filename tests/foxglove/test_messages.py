@@ -44,7 +44,8 @@ def convert(key: str, schema, sample: dict, converter: Converter | None = None):
 
 
 def test_a_valid_fix_is_the_antennas_location_with_an_enu_covariance():
-    [out] = convert("viena/elettra/gnss/gnss1/fix", FIX, fix(enu_sigma_m=[0.5, 0.6, 0.9]))
+    out, status = convert("viena/elettra/gnss/gnss1/fix", FIX, fix(enu_sigma_m=[0.5, 0.6, 0.9]))
+    assert status.kind == "GnssStatus"                            # its status: tests/foxglove/test_rtk_status.py
     assert out.topic == "viena/elettra/foxglove/gnss/gnss1/location" and out.kind == "LocationFix"
     loc = read(out)
     assert loc.latitude == 38.7369123456 and loc.longitude == -9.1395123456 and loc.altitude == 110.0
@@ -66,8 +67,8 @@ def test_ecef_sigmas_become_the_same_covariance_seen_along_east_north_up():
 
 
 def test_a_fix_without_a_solution_is_not_put_on_the_map():
-    assert convert("viena/elettra/gnss/gnss1/fix", FIX, fix(valid=False)) == []
-    assert convert("viena/elettra/gnss/gnss1/fix", FIX, fix(ecef_m=[100.0, 0.0, 0.0])) == []
+    for no_fix in (fix(valid=False), fix(ecef_m=[100.0, 0.0, 0.0])):       # only its status is sent
+        assert [d.kind for d in convert("viena/elettra/gnss/gnss1/fix", FIX, no_fix)] == ["GnssStatus"]
 
 
 def test_the_truth_is_a_pose_a_transform_and_a_location_with_heading_clockwise():

@@ -64,7 +64,7 @@ def test_values_carry_their_age_and_turn_stale():
     assert aged.age_s == pytest.approx(0.2) and not aged.stale
     assert aged.rate_hz == pytest.approx(20.0)
     shown = text_of(view)
-    assert "SOL_COMPUTED/SINGLE" in shown and "7/9" in shown and "3.00 m" in shown
+    assert "SINGLE (single)" in shown and "7/9" in shown and "3.00 m" in shown
     later = model.view(now=104.0)
     assert later.gnss["gnss0"].stale and later.gnss["gnss0"].rate_hz == 0.0
     assert "STALE 3.00 s" in text_of(later)
