@@ -59,14 +59,15 @@ CAR = "viena/elettra"
 
 
 @contextmanager
-def sim_car(link: str, work: Path):
-    """The sim profile on free ports, on `link` (tcp or tls); yields (env, router endpoint)."""
+def sim_car(link: str, work: Path, flags: tuple[str, ...] = ()):
+    """The sim profile on free ports, on `link` (tcp or tls), `viena up` given `flags`
+    besides (--rtk); yields (env, router endpoint)."""
     env = dict(os.environ, VIENA_RUN=str(work / f"run-{link}"), VIENA_KEYS=str(work / "keys"))
     for name in ("VIENA_ROUTER_PORT", "VIENA_LINK", "VIENA_IDENTITY"):
         env.pop(name, None)
     if link == "tls" and not (work / "keys").exists():
         keys_main(["--keys", env["VIENA_KEYS"], "init"])
-    flags = ["--secure"] if link == "tls" else []
+    flags = (*flags, "--secure") if link == "tls" else flags
     up = subprocess.run([*VIENA, "up", "-d", "--free-ports", *flags], env=env, capture_output=True,
                         text=True, timeout=120)
     try:

@@ -67,6 +67,15 @@ def test_every_program_reports_health(car):
     assert expected <= seen
 
 
+def test_the_corrections_chain_stays_off_without_rtk(sim_profile):
+    """`viena up` without --rtk: the caster's twin and viena-ntrip are left off, and `up -d`
+    did not wait for them (tests/test_rtk_car.py runs them)."""
+    from vienatest import supervisor
+    states = {i["name"]: i["statename"] for i in supervisor(Path(sim_profile[0]["VIENA_RUN"])).getAllProcessInfo()}
+    assert states["caster"] == states["ntrip"] == "STOPPED"
+    assert states["gnss0"] == states["estimator"] == "RUNNING"
+
+
 def test_steering_comes_up_calibrated_and_a_setpoint_turns_the_car(car):
     latest = {}
     sub = car.declare_subscriber("viena/elettra/steering/state",

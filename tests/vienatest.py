@@ -73,14 +73,14 @@ def viena(*args, timeout: float = 60, **kw) -> subprocess.CompletedProcess:
 
 
 @contextmanager
-def sim_profile_up(run: Path, **environment: str):
-    """The `sim` profile under supervisord (`viena up -d --free-ports`), its run directory
-    `run`, with `environment` added to its programs' (the profile's ${VAR} settings):
-    yields (environment, router endpoint) once the router listens (supervisord calls a
-    program RUNNING before that), and brings the profile down at the end."""
+def sim_profile_up(run: Path, flags: tuple[str, ...] = (), **environment: str):
+    """The `sim` profile under supervisord (`viena up -d --free-ports`, and `flags`), its run
+    directory `run`, with `environment` added to its programs' (the profile's ${VAR}
+    settings): yields (environment, router endpoint) once the router listens (supervisord
+    calls a program RUNNING before that), and brings the profile down at the end."""
     env = dict(os.environ, VIENA_RUN=str(run), **environment)
     env.pop("VIENA_ROUTER_PORT", None)
-    up = viena("up", "--profile", "sim", "-d", "--free-ports", env=env, timeout=120)
+    up = viena("up", "--profile", "sim", "-d", "--free-ports", *flags, env=env, timeout=120)
     try:
         assert up.returncode == 0, up.stderr
         port = int(json.loads((run / "env.json").read_text())["VIENA_ROUTER_PORT"])

@@ -31,7 +31,7 @@ from viena import compose
 from viena.common.session import add_version_flag
 
 BENCHES = ["sim", "gnss", "imu", "steering", "steering_envelope", "estimator", "laptop", "security", "faults", "fleet",
-           "foxglove", "pilot", "lockstep"]
+           "foxglove", "pilot", "lockstep", "ntrip", "rtk"]
 
 #: commands that live in their own module, each with build_parser(parser) and run(args);
 #: a module that is not there (a tool not written yet) is left out of the command list
@@ -49,6 +49,7 @@ TOOLS = {
     "plot": ("viena.plot", "a recorded drive as a PNG"),
     "foxglove": ("viena.foxglove", "the car live in Foxglove or Lichtblick (WebSocket server)"),
     "keys": ("viena.keys", "the car's certificates: init, issue, list, zenoh-config"),
+    "ntrip": ("viena.ntrip_cli", "NTRIP casters: a caster's source table, nearest mountpoints first"),
     "router": ("viena.router", "run a zenoh router"),
     "settings": ("viena.settings", "every setting of a service: type, default, meaning"),
     "sim": ("viena.sim_run", "closed-loop drives in virtual time: scenarios, a Monte-Carlo table"),
@@ -95,8 +96,11 @@ def _add_profile_commands(cmds) -> None:
                         "from other machines (a trusted network only)")
     p.add_argument("--keys", metavar="DIR",
                    help="the car's key store (default $VIENA_KEYS, else ~/.config/viena/keys/CAR)")
+    p.add_argument("--rtk", action="store_true",
+                   help="with the corrections chain: the NTRIP client (viena-ntrip) and, in the sim, the "
+                        "caster's twin; the receivers take its RTCM 3 (docs/sensors.md#corrections)")
     p.set_defaults(func=lambda a: compose.up(a.profile, a.detach, a.free_ports,
-                                             a.secure, a.insecure, a.keys))
+                                             a.secure, a.insecure, a.keys, a.rtk))
 
     p = cmds.add_parser("down", help="stop a running profile and everything in it")
     _profile_arg(p, None)

@@ -89,6 +89,8 @@ def environment(profile: str, free_ports: bool = False) -> dict[str, str]:
         "VIENA_PROFILE": profile,
         "VIENA_SETTINGS": str(compose_dir() / f"{profile}.toml"),
         "VIENA_LINK": os.environ.get("VIENA_LINK") or link_default(profile),
+        # the corrections chain (programs/ntrip.ini, caster.ini): off unless `up --rtk`
+        "VIENA_RTK": "false",
     }
     settings = compose_dir() / f"{profile}.toml"
     named = _SETTINGS_VAR.findall(settings.read_text()) if settings.exists() else []
@@ -101,6 +103,17 @@ def environment(profile: str, free_ports: bool = False) -> dict[str, str]:
         else:
             env[name] = str(default)
     return env
+
+
+def rtk_environment(env: dict[str, str]) -> dict[str, str]:
+    """What `up --rtk` changes: the NTRIP client (and in the sim the caster's twin) start,
+    and the receivers take RTCM 3 unless the caller's VIENA_RTK_FORMAT says otherwise (the
+    settings read it: compose/sim.toml [gnss] corrections), and the pilot follows only on
+    an RTK float or fixed solution ([pilot] min_solution), with Stanley ([pilot] controller:
+    on centimetre positions the tracker's own error is what is left)."""
+    return {"VIENA_RTK": "true", "VIENA_RTK_FORMAT": os.environ.get("VIENA_RTK_FORMAT") or "RTCMV3",
+            "VIENA_RTK_MIN_SOLUTION": os.environ.get("VIENA_RTK_MIN_SOLUTION") or "float",
+            "VIENA_PILOT_CONTROLLER": os.environ.get("VIENA_PILOT_CONTROLLER") or "stanley"}
 
 
 def saved_environment(profile: str) -> dict[str, str]:
@@ -130,11 +143,13 @@ def _supervisor_env(env: dict[str, str]) -> dict[str, str]:
 
 
 def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = False,
-       secure: bool = False, insecure: bool = False, keys: str | None = None) -> int:
+       secure: bool = False, insecure: bool = False, keys: str | None = None, rtk: bool = False) -> int:
     conf = profile_file(profile)
     if supervisord_pid(profile):
         raise ComposeError(f"profile '{profile}' is already up: `viena down --profile {profile}` first")
     env = environment(profile, free_ports)
+    if rtk:
+        env.update(rtk_environment(env))
     try:
         env.update(secure_environment(conf, env, secure, insecure, keys))
     except SecurityRefusal as exc:

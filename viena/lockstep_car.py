@@ -50,6 +50,9 @@ STOP_WAIT_S = 3.0
 RESTART_DELAY_S = 1.0
 
 _PROGRAM = re.compile(r"^\[program:([^\]]+)\]\s*\ncommand\s*=\s*(.+)$", re.M)
+#: a program `viena up` starts only when asked (autostart from the environment: the
+#: corrections chain of `up --rtk`, whose caster is a TCP server the lockstep wire does not carry)
+_OPTIONAL = re.compile(r"^autostart\s*=\s*%\(ENV_", re.M)
 
 
 @dataclass(frozen=True)
@@ -64,7 +67,12 @@ def profile_programs(conf: Path = SIM_CONF) -> list[Program]:
     """The viena services a supervisord profile runs, in the order it lists them, read
     from each program's command line (`python -m MODULE FLAGS --config FILE`)."""
     programs = []
-    for name, command in _PROGRAM.findall(profile_text(conf)):
+    text = profile_text(conf)
+    for match in _PROGRAM.finditer(text):
+        name, command = match.groups()
+        block = text[match.end():].split("\n[", 1)[0]
+        if _OPTIONAL.search(block):
+            continue
         words = shlex.split(command)
         if "-m" not in words:
             continue

@@ -39,8 +39,25 @@ def profile_text(conf: Path) -> str:
     return text
 
 
-def programs(conf: Path) -> list[str]:
-    return _PROGRAM.findall(profile_text(conf))
+#: programs of a profile that open no zenoh session, so need no identity: the NTRIP
+#: caster's twin (a TCP server the sim profile runs with `up --rtk`)
+WITHOUT_IDENTITY = frozenset({"caster"})
+_AUTOSTART_ENV = re.compile(r"^autostart\s*=\s*%\(ENV_([A-Z0-9_]+)\)s", re.M)
+
+
+def programs(conf: Path, env: dict[str, str] | None = None) -> list[str]:
+    """The profile's programs; given the run's environment, only those it starts (a
+    program whose `autostart` is an environment variable, the corrections chain's, starts
+    when that says true)."""
+    text = profile_text(conf)
+    names = []
+    for match in _PROGRAM.finditer(text):
+        block = text[match.end():].split("\n[", 1)[0]
+        optional = _AUTOSTART_ENV.search(block)
+        if env is not None and optional and env.get(optional.group(1), "false").lower() != "true":
+            continue
+        names.append(match.group(1))
+    return names
 
 
 def router_listen(conf: Path, env: dict[str, str]) -> str | None:
@@ -65,7 +82,7 @@ def secure_environment(conf: Path, env: dict[str, str], secure: bool, insecure: 
     if link == "tls":
         store = KeyStore.for_car(out["VIENA_CAR"], keys)
         out["VIENA_KEYS"] = str(store.dir.resolve())
-        _check_identities(store, programs(conf))
+        _check_identities(store, [p for p in programs(conf, env) if p not in WITHOUT_IDENTITY])
         return out
     listen = router_listen(conf, {**env, **out})
     if listen and not is_loopback(listen) and not insecure:

@@ -115,6 +115,8 @@ def wait_settled(profile: str, names: list[str] | None = None, said_before: dict
     now); the programs that failed meanwhile (empty when all are up). A program not up
     after `timeout` counts as failed."""
     supervisor = rpc(profile)
+    if names is None:       # a program left off (autostart false: `up` without --rtk) is not waited for
+        names = [c["name"] for c in supervisor.getAllConfigInfo() if c.get("autostart", True)]
     end = time.monotonic() + timeout
     said_before = dict(said_before or {})
     runs: dict[str, tuple[int, float]] = {}      # name -> (start time of its run, seen RUNNING at)

@@ -30,6 +30,9 @@ class Supervisor:
     def __init__(self, clock: Clock, run_dir, script: dict, says: dict):
         self.clock, self.run_dir, self.script, self.says = clock, run_dir, script, says
 
+    def getAllConfigInfo(self):
+        return [{"name": name, "autostart": True} for name in self.script]
+
     def getAllProcessInfo(self):
         infos = []
         for name, steps in self.script.items():
