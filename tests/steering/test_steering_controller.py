@@ -12,6 +12,7 @@ import pytest
 from steering_helpers import SimSteering as Steering
 
 from viena.services.steering.driver import ds402
+from viena.services.steering.model.trips import TripCause, trip
 
 
 @pytest.fixture
@@ -50,7 +51,8 @@ def test_silence_trips_the_watchdog_which_stops_then_powers_off(steering):
     assert steering.run_until(lambda: not steering.ctl.envelope.armed, 1.5)
     assert steering.run_until(lambda: steering.twin.state == ds402.SWITCH_ON_DISABLED, 1.0)
     st = steering.ctl.state()
-    assert st["watchdog"] == "tripped" and st["trip"].startswith("watchdog") and not st["armed"]
+    assert st["watchdog"] == "tripped" and st["trip_cause"] == TripCause.WATCHDOG and not st["armed"]
+    assert st["trip"].startswith(trip(TripCause.WATCHDOG).label)
     sent = [cw for i, cw in enumerate(steering.controlwords) if i == 0 or cw != steering.controlwords[i - 1]]
     assert sent[-3:] == [ds402.CW_ENABLE_OPERATION, ds402.CW_QUICK_STOP, ds402.CW_DISABLE_VOLTAGE]
     r = steering.request("setpoint", {"angle_deg": 3.0, "lease": lease})

@@ -15,8 +15,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from vienatest import signed
 
-from viena.services.steering.driver import Emcy, ds402
-from viena.services.steering.driver.epos import NMT_OPERATIONAL, POSITION_MODE, Feedback
+from viena.services.steering.driver import Emcy
+from viena.services.steering.model import ds402
 from viena.services.steering.model.actions import (
     Command,
     Configure,
@@ -29,10 +29,12 @@ from viena.services.steering.model.actions import (
 )
 from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.model.core import ControllerSettings, Phase, SteeringCore
+from viena.services.steering.model.drive import NMT_OPERATIONAL, POSITION_MODE, Feedback
 from viena.services.steering.model.requests import parse_request
 from viena.services.steering.model.safety import Envelope
 from viena.services.steering.model.speed import SpeedSettings
 from viena.services.steering.model.state import sample
+from viena.services.steering.model.trips import TripCause
 
 STEERING = Path(__file__).resolve().parents[2] / "services/steering/model"
 WALL_NS = 1_700_000_000_000_000_000
@@ -270,7 +272,7 @@ def test_the_watchdog_quick_stops_on_time_and_powers_off_after_the_hold():
     b.armed()
     assert Command(ds402.CW_QUICK_STOP) not in b.tick(dt=0.49)
     actions = b.tick(dt=0.02)
-    assert actions[0] == Command(ds402.CW_QUICK_STOP) and b.core.envelope.tripped.startswith("watchdog")
+    assert actions[0] == Command(ds402.CW_QUICK_STOP) and b.core.envelope.trip_cause is TripCause.WATCHDOG
     assert not b.core.envelope.armed and b.core.phase is Phase.READY
     assert actions[1] == Cycle(None)                          # no target once disarmed
     assert Command(ds402.CW_DISABLE_VOLTAGE) not in b.tick(dt=HOLD_S - 0.01)
@@ -293,6 +295,7 @@ def test_a_lost_heartbeat_stops_the_wheel_and_a_silent_drive_is_configured_again
     assert Command(ds402.CW_QUICK_STOP) not in b.tick()
     b.heartbeat_age_s = 0.36
     assert b.tick()[0] == Command(ds402.CW_QUICK_STOP) and b.core.envelope.tripped == "drive heartbeat lost"
+    assert b.core.envelope.trip_cause is TripCause.DRIVE_HEARTBEAT
     assert sample(b.core, b.t, WALL_NS, b.reading(), 1)["drive_heartbeat"] == "lost"
     b.heartbeat_age_s = 0.99
     assert Configure() not in b.tick()
@@ -315,6 +318,7 @@ def test_feedback_that_stops_while_armed_stops_the_wheel():
     assert Command(ds402.CW_QUICK_STOP) not in b.tick(dt=0.19, answered=False)
     assert b.tick(dt=0.02, answered=False)[0] == Command(ds402.CW_QUICK_STOP)
     assert b.core.envelope.tripped == "no feedback from the drive"
+    assert b.core.envelope.trip_cause is TripCause.FEEDBACK_TIMEOUT
 
 
 def test_an_emcy_stops_the_wheel_and_names_the_fault():
@@ -322,7 +326,17 @@ def test_an_emcy_stops_the_wheel_and_names_the_fault():
     b.armed()
     assert b.core.on_emcy(b.t, Emcy(0x4210, 0x09)) == [Command(ds402.CW_QUICK_STOP)]
     assert b.core.fault == "EMCY 0x4210 Over Temperature" and "Over Temperature" in b.core.envelope.tripped
+    assert b.core.envelope.tripped == "drive EMCY 0x4210 Over Temperature"
+    assert b.core.envelope.trip_cause is TripCause.DRIVE_FAULT
     assert b.core.on_emcy(b.t, Emcy(0, 0)) == [] and b.core.fault == ""
+
+
+def test_the_drives_life_guard_is_its_own_cause_with_the_same_text():
+    b = Bench()
+    b.armed()
+    assert b.core.on_emcy(b.t, Emcy(0x8130, 0x11)) == [Command(ds402.CW_QUICK_STOP)]
+    assert b.core.envelope.tripped == "drive EMCY 0x8130 CAN Life Guard Error"
+    assert sample(b.core, b.t, WALL_NS, b.reading(), 1)["trip_cause"] == TripCause.LIFE_GUARD == "life_guard"
 
 
 def test_a_lost_link_trips_sends_nothing_and_reconnects():
@@ -330,6 +344,7 @@ def test_a_lost_link_trips_sends_nothing_and_reconnects():
     b.armed()
     assert b.core.link_lost(b.t, "adapter unplugged") == [Connect()]
     assert b.core.envelope.tripped == "CAN link lost: adapter unplugged" and b.core.phase is Phase.CONNECTING
+    assert b.core.envelope.trip_cause is TripCause.LINK_LOST
     assert b.tick() == []                                     # nothing goes on a link that is down
 
 

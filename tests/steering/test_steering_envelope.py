@@ -30,6 +30,7 @@ from test_steering_safety import WALL_NS, FakeClock, Timed
 from viena.services.steering.model.lateral import LateralSettings, lateral_accel_mps2, limits
 from viena.services.steering.model.safety import ACCEPTED, CLAMPED, REJECTED, Envelope, SafetySettings
 from viena.services.steering.model.speed import CONSERVATIVE, SpeedSettings
+from viena.services.steering.model.trips import TripCause
 
 PERIOD = 0.01                      # the control loop's tick
 EPS = 1e-9
@@ -387,7 +388,7 @@ class Drive:
             if self.env.armed:                       # beyond twice the range: refused, not clamped
                 assert d.reason.startswith("absurd") and self.env.target_deg == before, d
             else:                                    # only absurd ones for the watchdog's deadline
-                assert self.env.tripped.startswith("watchdog"), (d, self.env.tripped)
+                assert self.env.trip_cause is TripCause.WATCHDOG, (d, self.env.tripped)
                 self._rearm()
             return
         self._check(d.target_deg, "setpoint")
@@ -395,7 +396,7 @@ class Drive:
     def _tick(self, lag: float, rng: random.Random) -> None:
         target, tripped = self.env.tick(self.measured)
         if tripped:                                  # only absurd setpoints for the watchdog's deadline
-            assert tripped.startswith("watchdog"), tripped
+            assert self.env.trip_cause is TripCause.WATCHDOG, tripped
             self._rearm()
             return
         self._check(target, "tick")

@@ -21,6 +21,7 @@ from viena.services.steering.model.safety import (
     lease_hash,
 )
 from viena.services.steering.model.speed import SpeedSettings
+from viena.services.steering.model.trips import TripCause, trip_text
 
 RANGE = (-29.0, 29.0)
 PERIOD = 0.01                         # the control loop's tick
@@ -201,8 +202,8 @@ def test_watchdog_trips_after_the_deadline_and_needs_a_new_arm():
     assert env.tick(0.0) == (0.0, "")
     clock.t += 0.02
     target, tripped = env.tick(0.0)
-    assert target is None and tripped.startswith("watchdog")
-    assert not env.armed and env.tripped.startswith("watchdog")
+    assert target is None and tripped == env.tripped == trip_text(TripCause.WATCHDOG, ": no valid setpoint for 0.510 s")
+    assert not env.armed and env.trip_cause is TripCause.WATCHDOG
     d = env.setpoint({"angle_deg": 1.0, "lease": lease}, 0.0)
     assert d.status == REJECTED and "arm again" in d.reason
     new = env.arm(0.0)
@@ -217,7 +218,7 @@ def test_rejected_setpoints_do_not_feed_the_watchdog():
         clock.t += 0.1
         env.setpoint({"angle_deg": float("nan"), "lease": lease}, 0.0)
     clock.t += 0.01
-    assert env.tick(0.0)[1].startswith("watchdog") and not env.armed
+    assert env.tick(0.0)[1] and env.trip_cause is TripCause.WATCHDOG and not env.armed
 
 
 def test_a_second_client_can_neither_arm_nor_disarm_nor_steer():

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from viena.services.steering.driver.epos import Feedback
 from viena.services.steering.model.calibration import Calibration
+from viena.services.steering.model.drive import Feedback
 
 
 @dataclass(frozen=True)

@@ -17,9 +17,9 @@ import logging
 from dataclasses import dataclass
 from enum import Enum
 
-from viena.services.steering.driver import ds402
-from viena.services.steering.driver.epos import Feedback
+from viena.services.steering.model import ds402
 from viena.services.steering.model.actions import Command, SendTarget
+from viena.services.steering.model.drive import Feedback
 
 log = logging.getLogger("viena.steering")
 

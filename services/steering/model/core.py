@@ -15,21 +15,20 @@ runner (`controller.SteeringController`) to carry out. Every path is therefore t
 a simulated clock, one event at a time.
 
 Phases: connecting -> calibrating (the person's sweep) -> checking (limits written to the
-drive) -> ready <-> armed. Every stop (estop, watchdog, drive fault, disarm, link, service
-stop) is the same: quick stop now, so the drive halts and holds the wheel, then power off
-after `quickstop_hold_s`.
+drive) -> ready <-> armed. Every stop (a disarm, or a trip: model/trips.py) is the same:
+quick stop now, so the drive halts and holds the wheel, then power off after
+`quickstop_hold_s`.
 """
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import TYPE_CHECKING
 
 from viena.common.log import Throttled
 from viena.common.settings import setting
-from viena.services.steering.driver import ds402
-from viena.services.steering.driver.emcy import Emcy
-from viena.services.steering.driver.epos import POSITION_MODE, DriveSettings, Feedback
+from viena.services.steering.model import ds402
 from viena.services.steering.model.actions import (
     Command,
     Configure,
@@ -47,6 +46,7 @@ from viena.services.steering.model.calibration import (
     CalibrationSettings,
     SweepRecorder,
 )
+from viena.services.steering.model.drive import POSITION_MODE, DriveSettings, Feedback
 from viena.services.steering.model.requests import (
     Arm,
     BadSetpoint,
@@ -59,6 +59,13 @@ from viena.services.steering.model.requests import (
 )
 from viena.services.steering.model.safety import ACCEPTED, REJECTED, Envelope
 from viena.services.steering.model.supervision import Backoff, DriveWatch
+from viena.services.steering.model.trips import TripCause
+
+if TYPE_CHECKING:                     # the driver's package loads the CAN stack
+    from viena.services.steering.driver.emcy import Emcy
+
+#: the EMCY the drive sends when the host's heartbeat stops (driver/emcy.py LIFE_GUARD_ERROR)
+LIFE_GUARD_ERROR = 0x8130
 
 log = logging.getLogger("viena.steering")
 
@@ -87,10 +94,10 @@ class SteeringCore:
 
     def __init__(self, envelope: Envelope, calibration: CalibrationSettings = CalibrationSettings(),
                  settings: ControllerSettings = ControllerSettings(),
-                 drive: DriveSettings = DriveSettings()):
+                 drive: DriveSettings | None = None):
         self.envelope = envelope
         self.settings = settings
-        self.drive = drive
+        self.drive = drive = drive or DriveSettings()
         self.phase = Phase.CONNECTING
         self.calibration: Calibration | None = None
         self.recorder = SweepRecorder(calibration)
@@ -172,7 +179,7 @@ class SteeringCore:
     def link_lost(self, now: float, error: str) -> list:
         if self.link_ok:
             self.link_ok = False
-            self.envelope.trip(f"CAN link lost: {error}")
+            self.envelope.trip(TripCause.LINK_LOST, f": {error}")
             self._abort_arm(f"CAN link lost: {error}", power_off=False)
             self.watch.alive = False
             log.error("CAN link lost: %s; reconnecting", error)
@@ -183,7 +190,7 @@ class SteeringCore:
         """The service is stopping: stop the wheel. Returns the frames and how long to let
         the control loop hold the quick stop before the final `power_off`."""
         was_armed = self.envelope.armed
-        self._stop_drive(now, "service stopping")
+        self._stop_drive(now, TripCause.SERVICE_STOPPING)
         hold_s = self.settings.quickstop_hold_s if was_armed and self.link_ok else 0.0
         return self._take(), hold_s
 
@@ -215,7 +222,7 @@ class SteeringCore:
             measured = self.calibration.angle_deg(fb.position_qc) if fresh else None
             target, tripped = self.envelope.tick(measured, now)
             if tripped:
-                self._stop_drive(now, tripped, already_tripped=True)
+                self._stop_drive(now)
             elif target is not None:
                 target_qc = self.target_qc = round(self.calibration.qc_of(target))
         if self._disable_at is not None and now >= self._disable_at:
@@ -230,14 +237,14 @@ class SteeringCore:
             log.info("drive heartbeat: ok")
         elif changed is False:
             log.error("drive heartbeat lost")
-            self._stop_drive(now, "drive heartbeat lost")
+            self._stop_drive(now, TripCause.DRIVE_HEARTBEAT)
         if reconfigure:
             self._reconfigure(now, reconfigure)
         if self.envelope.armed:
             if not self.fresh(fb, now):
-                self._stop_drive(now, "no feedback from the drive")
+                self._stop_drive(now, TripCause.FEEDBACK_TIMEOUT)
             elif fb.state != ds402.OPERATION_ENABLED:
-                self._stop_drive(now, self.fault or f"drive left operation enabled ({fb.state})")
+                self._stop_drive(now, TripCause.NOT_ENABLED, f" ({fb.state})")
 
     def _sweep_sample(self, fb: Feedback, now: float) -> None:
         r = self.recorder
@@ -264,12 +271,15 @@ class SteeringCore:
         else:
             self.fault = str(emcy)
             log.error("drive %s", emcy)
-            self._stop_drive(now, f"drive {emcy}")
+            if emcy.code == LIFE_GUARD_ERROR:          # the text: "drive " + str(emcy), as ever
+                self._stop_drive(now, TripCause.LIFE_GUARD, f" {emcy.name}")
+            else:
+                self._stop_drive(now, TripCause.DRIVE_FAULT, f" 0x{emcy.code:04X} {emcy.name}")
         return self._take()
 
     def on_bootup(self, now: float) -> list:
         """The drive announced a (re)boot: its configuration and its counter are gone."""
-        self._reconfigure(now, "drive rebooted: calibration lost")
+        self._reconfigure(now, TripCause.DRIVE_REBOOTED)
         return self._take()
 
     # -- requests --------------------------------------------------------------------------
@@ -298,7 +308,7 @@ class SteeringCore:
         """Quick stop now, whoever asks and whatever they send; disarms. Logged with the
         sender when it says who it is; a flood of them is a line per cause and interval."""
         was_armed = self.envelope.armed
-        self._stop_drive(now, "estop")
+        self._stop_drive(now, TripCause.ESTOP)
         self._now = now
         sender = f"from '{by}' (as it says)" if by else "from a sender that did not say who"
         self._estops.log(f"{'was armed' if was_armed else 'was not armed'}, {sender}")
@@ -370,7 +380,7 @@ class SteeringCore:
             return {"status": ACCEPTED, "reason": "was not armed"}
         if not self.envelope.disarm(request.lease):
             return _rejected("only the owner can disarm (anyone can estop)")
-        self._stop_drive(now, "")
+        self._stop_drive(now)
         self.phase = Phase.READY
         return {"status": ACCEPTED, "reason": "disarmed: quick stop, then power off"}
 
@@ -380,7 +390,7 @@ class SteeringCore:
         was_armed = self.envelope.armed
         d = self.envelope.setpoint(request, measured, now, wall_ns)
         if was_armed and not self.envelope.armed:          # it came after the deadline
-            self._stop_drive(now, self.envelope.tripped, already_tripped=True)
+            self._stop_drive(now)
         if d.target_deg is not None:
             self.target_qc = round(cal.qc_of(d.target_deg))
             self._emit(SendTarget(self.target_qc))
@@ -423,10 +433,11 @@ class SteeringCore:
         """Whether the drive's last TPDO is recent enough to act on."""
         return now - fb.received_s <= self.settings.feedback_timeout_s
 
-    def _stop_drive(self, now: float, reason: str, already_tripped: bool = False) -> None:
-        """Quick stop now, power off later; `reason` trips the envelope (none for a disarm)."""
-        if reason and not already_tripped:
-            self.envelope.trip(reason)
+    def _stop_drive(self, now: float, cause: TripCause | None = None, detail: str = "") -> None:
+        """Quick stop now, power off later; `cause` (and its `detail`) trips the envelope (none
+        for a disarm, or when the envelope tripped itself)."""
+        if cause is not None:
+            self.envelope.trip(cause, detail)
         if self.arming is not None:           # the stop's own quick stop and power-off follow
             self._abort_arm(f"stopped while arming ({self.envelope.tripped or 'estop'})", power_off=False)
         if self.phase is Phase.ARMED:
@@ -445,8 +456,8 @@ class SteeringCore:
         self.calibration = self._checking = None
         self.envelope.clear_range()
 
-    def _reconfigure(self, now: float, reason: str) -> None:
-        self._stop_drive(now, reason)
+    def _reconfigure(self, now: float, cause: TripCause) -> None:
+        self._stop_drive(now, cause)
         self._configure()
 
     def _connect(self) -> None:

@@ -19,7 +19,7 @@ the watchdog has tripped; `core.SteeringCore` sends and stops.
   A target left outside the lateral bound (the speed rose, or became unknown) goes back in
   at the slew, never further out.
 - Watchdog: armed and no valid (accepted or clamped) setpoint for `watchdog_s` -> tripped;
-  a new arm is required. Drive faults trip it too, with their cause.
+  a new arm is required. Drive faults trip it too, with their cause (model/trips.py).
 
 Invariants (tests/steering/test_steering_safety.py and test_steering_envelope.py check them
 for any input and any speed): every target lies in the allowed range and moves by at most
@@ -40,6 +40,7 @@ from viena.services.steering.model.lateral import LateralSettings, Limits, limit
 from viena.services.steering.model.requests import BadSetpoint, Setpoint
 from viena.services.steering.model.signing import macs_match
 from viena.services.steering.model.speed import Speed, SpeedSettings, SpeedSources
+from viena.services.steering.model.trips import TripCause, trip_text
 
 log = logging.getLogger("viena.steering.safety")
 
@@ -95,7 +96,8 @@ class Envelope:
         self.target_t: float | None = None
         self.last_valid_t: float | None = None
         self.last_seq = -1                # the owner's last signed setpoint taken (replays refused)
-        self.tripped = ""                 # why the last trip happened ("" = none since arm)
+        self.tripped = ""                 # why the last trip happened, as text ("" = none since arm)
+        self.trip_cause: TripCause | None = None   # and its cause (None = none since arm)
         self.last: Decision | None = None
         self.refused: dict[str, int] = {}  # rejected setpoints by cause (REFUSAL_CAUSES), for health
         self._log = DecisionLog()
@@ -113,7 +115,7 @@ class Envelope:
 
     def clear_range(self) -> None:
         if self.armed:
-            self.trip("calibration lost")
+            self.trip(TripCause.CALIBRATION_LOST)
         self.range_deg = None
 
     @property
@@ -170,7 +172,7 @@ class Envelope:
             self.target_t = self.armed_t = self._goal_t = now_s
         self.armed = True
         self.last_valid_t = now_s
-        self.tripped = ""
+        self.tripped, self.trip_cause = "", None
         log.info("armed by %s at %.2f deg", self.owner, measured_deg)
         return self.lease
 
@@ -182,11 +184,13 @@ class Envelope:
         self._release()
         return True
 
-    def trip(self, reason: str) -> bool:
-        """Stop: disarm with a cause; a new arm is needed. False if already disarmed."""
+    def trip(self, cause: TripCause, detail: str = "") -> bool:
+        """Stop: disarm with a cause (and the detail its text ends with); a new arm is needed.
+        False if already disarmed."""
         was_armed = self.armed
+        reason = trip_text(cause, detail)
         if was_armed or not self.tripped:
-            self.tripped = reason
+            self.tripped, self.trip_cause = reason, cause
         if was_armed:
             log.warning("tripped: %s (owner %s)", reason, self.owner)
         self._release()
@@ -287,8 +291,8 @@ class Envelope:
         if reason:
             return None, reason
         if measured_deg is None or not math.isfinite(measured_deg):
-            self.trip("no position from the drive")
-            return None, "no position from the drive"
+            self.trip(TripCause.NO_POSITION)
+            return None, self.tripped
         target = self._next_target(self.goal_deg, measured_deg, now_s)[0]
         return target, ""
 
@@ -299,9 +303,8 @@ class Envelope:
         silent = now - self.last_valid_t
         if silent <= self.settings.watchdog_s:
             return ""
-        reason = f"watchdog: no valid setpoint for {silent:.3f} s"
-        self.trip(reason)
-        return reason
+        self.trip(TripCause.WATCHDOG, f": no valid setpoint for {silent:.3f} s")
+        return self.tripped
 
     def _next_target(self, goal: float, measured: float, now: float) -> tuple[float, tuple[str, ...], Speed, Limits]:
         """Move the target toward `goal`: within the range and the lateral bound at the

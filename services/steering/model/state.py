@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 from viena.common.display import fields_view
 from viena.common.schema import F, Schema
+from viena.services.steering.model.trips import TripCause
 
 if TYPE_CHECKING:                     # the schema alone must not pull in the CAN stack
     from viena.services.steering.model.actions import DriveReading
@@ -28,7 +29,7 @@ STATE = Schema("viena.steering.state/1", {
     "following_error_qc": F.int,
     "drive_heartbeat": F.enum("ok", "lost"),
     "watchdog": F.enum("ok", "tripped"),
-    "trip": F.str,                            # why it last stopped: watchdog, estop, EMCY ...
+    "trip": F.str,                            # why it last stopped, as text: begins with its cause's label
     "fault": F.str,                           # the drive's active fault ("" when none)
     "emcy": F.str,                            # the last EMCY seen, with its name
     "limits": F.list(F.str),                  # limits active on the last setpoint
@@ -41,11 +42,13 @@ STATE = Schema("viena.steering.state/1", {
     "max_wheel_deg": F.optional(F.float),     # widest target either way at that speed (None: no limit)
     "max_rate_deg_s": F.optional(F.float),    # fastest target rate there (slew or lateral jerk)
     "engaging": F.optional(F.bool),           # the stricter limits of the first seconds after an arm
+    # why it last stopped (model/trips.py TripCause; None: no trip since the arm); optional: older states lack it
+    "trip_cause": F.optional(F.enum(*(cause.value for cause in TripCause))),
 })
 
 #: the fields a person at the monitor looks at first; the rest follow as they come
 MONITOR_FIRST = ("phase", "armed", "owner", "angle_deg", "target_deg", "goal_deg", "watchdog",
-                 "trip", "fault", "drive_heartbeat", "ds402", "decision", "limits", "speed_mps",
+                 "trip", "trip_cause", "fault", "drive_heartbeat", "ds402", "decision", "limits", "speed_mps",
                  "speed_source", "speed_problem", "max_wheel_deg", "max_rate_deg_s")
 
 
@@ -79,7 +82,7 @@ def sample(core: SteeringCore, now: float, wall_ns: int, reading: DriveReading, 
         "statusword": fb.statusword,
         "following_error_qc": fb.following_error_qc,
         "drive_heartbeat": "ok" if core.drive_alive else "lost",
-        "watchdog": "tripped" if env.tripped.startswith("watchdog") else "ok",
+        "watchdog": "tripped" if env.trip_cause is TripCause.WATCHDOG else "ok",
         "trip": env.tripped,
         "fault": core.fault_text(fb, now),
         "emcy": core.emcy,
@@ -92,4 +95,5 @@ def sample(core: SteeringCore, now: float, wall_ns: int, reading: DriveReading, 
         "max_wheel_deg": lim.max_wheel_deg if math.isfinite(lim.max_wheel_deg) else None,
         "max_rate_deg_s": rate,
         "engaging": lim.engaging,
+        "trip_cause": env.trip_cause.value if env.trip_cause is not None else None,
     }

@@ -6,8 +6,9 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-from viena.services.steering.driver.epos import NMT_OPERATIONAL, DriveSettings
 from viena.services.steering.model.actions import DriveReading
+from viena.services.steering.model.drive import NMT_OPERATIONAL, DriveSettings
+from viena.services.steering.model.trips import TripCause
 
 log = logging.getLogger("viena.steering")
 
@@ -23,9 +24,9 @@ class DriveWatch:
     configured_at: float = float("-inf")
     not_operational_since: float | None = None
 
-    def observe(self, now: float, reading: DriveReading, configuring: bool) -> tuple[bool | None, str]:
+    def observe(self, now: float, reading: DriveReading, configuring: bool) -> tuple[bool | None, TripCause | None]:
         """(True or False when `alive` just changed, else None; why to configure the drive
-        again, or ""). `configuring`: a configuration is under way, nothing to redo."""
+        again, or None). `configuring`: a configuration is under way, nothing to redo."""
         age = reading.heartbeat_age_s
         alive = age <= self.drive.drive_heartbeat_timeout_s
         changed = alive if alive != self.alive else None
@@ -34,20 +35,20 @@ class DriveWatch:
         if not alive and not configuring and silent > self.silent_drive_s:
             log.error("drive silent for %.1f s: configuring it again when it answers", silent)
             self.not_operational_since = None
-            return changed, "drive silent: calibration lost"
+            return changed, TripCause.DRIVE_SILENT
         return changed, self._not_operational(now, reading.nmt_state, configuring)
 
-    def _not_operational(self, now: float, state: int | None, configuring: bool) -> str:
+    def _not_operational(self, now: float, state: int | None, configuring: bool) -> TripCause | None:
         if not self.alive or configuring or state in (None, NMT_OPERATIONAL):
             self.not_operational_since = None
-            return ""
+            return None
         if self.not_operational_since is None:
             self.not_operational_since = now
         elif now - self.not_operational_since > 3 * self.drive.drive_heartbeat_period_s:
             log.warning("drive reports NMT state %d, not operational: configuring it again", state)
             self.not_operational_since = None
-            return "drive not operational: calibration lost"
-        return ""
+            return TripCause.NOT_OPERATIONAL
+        return None
 
 
 @dataclass

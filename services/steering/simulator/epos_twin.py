@@ -36,7 +36,6 @@ from canopen.objectdictionary.datatypes import INTEGER_TYPES
 from canopen.sdo import SdoAbortedError
 
 from viena.common import clock as clocks
-from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import (
     ERROR_REGISTER,
     FOLLOWING_ERROR,
@@ -44,8 +43,9 @@ from viena.services.steering.driver.emcy import (
     SOFTWARE_POSITION_LIMIT_ERROR,
     emcy_name,
 )
-from viena.services.steering.driver.epos import EDS_PATH, POSITION_MODE
+from viena.services.steering.model import ds402
 from viena.services.steering.model.calibration import SLOPE_DEG_PER_QC
+from viena.services.steering.model.drive import EDS_PATH, POSITION_MODE
 from viena.services.steering.simulator.plant import TRAJ01, PlantParams, PositionPlant
 
 log = logging.getLogger(__name__)

@@ -3,13 +3,13 @@
 Written out in docs/steering.md#ds402-states; section and table numbers are the EPOS firmware
 specification's (docs/README.md#sources).
 
-The state names and statusword masks are canopen's (`canopen.profiles.p402.State402`), so
-the service, the twin and canopen's BaseNode402 speak of the same states. This module
-adds the EPOS statusword values and the controlword commands by name.
+The state names, statusword masks and controlword commands are canopen's
+(`canopen.profiles.p402.State402`), written out here so that the model imports no CAN stack
+(tests/steering/test_steering_trips.py checks they still equal canopen's): the service, the
+twin and canopen's BaseNode402 speak of the same states. This module adds the EPOS
+statusword values and the controlword commands by name.
 """
 from __future__ import annotations
-
-from canopen.profiles.p402 import State402
 
 NOT_READY = "NOT READY TO SWITCH ON"
 SWITCH_ON_DISABLED = "SWITCH ON DISABLED"
@@ -22,11 +22,11 @@ FAULT = "FAULT"
 UNKNOWN = "UNKNOWN"
 
 #: controlword commands (low byte; firmware specification table 3)
-CW_DISABLE_VOLTAGE = State402.CW_DISABLE_VOLTAGE      # 0x0000 -> switch on disabled
-CW_QUICK_STOP = State402.CW_QUICK_STOP                # 0x0002 -> quick stop active
-CW_SHUTDOWN = State402.CW_SHUTDOWN                    # 0x0006 -> ready to switch on
-CW_SWITCH_ON = State402.CW_SWITCH_ON                  # 0x0007 -> switched on
-CW_ENABLE_OPERATION = State402.CW_OPERATION_ENABLED   # 0x000F -> operation enabled
+CW_DISABLE_VOLTAGE = 0x0000                           # -> switch on disabled
+CW_QUICK_STOP = 0x0002                                # -> quick stop active
+CW_SHUTDOWN = 0x0006                                  # -> ready to switch on
+CW_SWITCH_ON = 0x0007                                 # -> switched on
+CW_ENABLE_OPERATION = 0x000F                          # -> operation enabled
 CW_FAULT_RESET = 0x0080                               # bit 7; acts on its 0 -> 1 edge only
 
 #: statusword bits the EPOS sets besides the state (table 101)
@@ -52,9 +52,22 @@ EPOS_STATUSWORD = {
 }
 
 
+#: state -> (mask, bits) of the statusword: canopen's State402.SW_MASK (CiA 402)
+SW_MASK = {
+    NOT_READY: (0x4F, 0x00),
+    SWITCH_ON_DISABLED: (0x4F, 0x40),
+    READY: (0x6F, 0x21),
+    SWITCHED_ON: (0x6F, 0x23),
+    OPERATION_ENABLED: (0x6F, 0x27),
+    FAULT: (0x4F, 0x08),
+    FAULT_REACTION: (0x4F, 0x0F),
+    QUICK_STOP_ACTIVE: (0x6F, 0x07),
+}
+
+
 def state_of(statusword: int) -> str:
     """The DS402 state a statusword reports (canopen's masks)."""
-    for state, (mask, bits) in State402.SW_MASK.items():
+    for state, (mask, bits) in SW_MASK.items():
         if statusword & mask == bits:
             return state
     return UNKNOWN

@@ -1,0 +1,63 @@
+"""The trip table (model/trips.py): the one list of why the steering stops, checked against
+docs/steering.md, the settings it names and the texts the core writes; and the model rooms
+load no I/O stack."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from dataclasses import fields
+from pathlib import Path
+
+import pytest
+from canopen.profiles.p402 import State402
+
+from viena.services.steering.model import ds402
+from viena.services.steering.model.trips import TRIPS, TripCause, markdown_table, trip, trip_text
+from viena.services.steering.service import SteeringSettings
+
+REPO = Path(__file__).resolve().parents[2]
+DOC = REPO / "docs" / "steering.md"
+BEGIN, END = "<!-- trips: begin (model/trips.py markdown_table) -->", "<!-- trips: end -->"
+MODEL = REPO / "services" / "steering" / "model"
+
+
+def test_every_cause_has_one_row():
+    assert [row.cause for row in TRIPS] == list(TripCause)
+
+
+def test_the_doc_shows_the_codes_table():
+    text = DOC.read_text()
+    table = text.split(BEGIN, 1)[1].split(END, 1)[0].strip("\n") + "\n"
+    assert table == markdown_table(), "docs/steering.md#watchdog-and-trips: paste model/trips.py markdown_table()"
+
+
+def test_each_deadline_is_a_steering_setting():
+    for row in TRIPS:
+        if row.deadline is None:
+            continue
+        part, name = row.deadline.split(".")
+        settings = getattr(SteeringSettings(), part)
+        assert name in {f.name for f in fields(settings)}, (row.cause, row.deadline)
+
+
+@pytest.mark.parametrize("cause", list(TripCause))
+def test_the_text_begins_with_the_label(cause):
+    assert trip_text(cause, ": detail").startswith(trip(cause).label)
+    assert trip_text(cause) == trip(cause).label
+
+
+def test_the_ds402_words_are_canopens():
+    assert ds402.SW_MASK == State402.SW_MASK
+    assert (ds402.CW_DISABLE_VOLTAGE, ds402.CW_QUICK_STOP, ds402.CW_SHUTDOWN, ds402.CW_SWITCH_ON,
+            ds402.CW_ENABLE_OPERATION) == (State402.CW_DISABLE_VOLTAGE, State402.CW_QUICK_STOP,
+                                           State402.CW_SHUTDOWN, State402.CW_SWITCH_ON,
+                                           State402.CW_OPERATION_ENABLED)
+
+
+@pytest.mark.parametrize("module", sorted(p.stem for p in MODEL.glob("*.py") if p.stem != "__init__"))
+def test_a_model_module_loads_no_io_stack(module):
+    """Imported alone, in a fresh interpreter."""
+    code = (f"import sys, viena.services.steering.model.{module}; "
+            "print([m for m in ('serial', 'can', 'canopen', 'pynmea2', 'zenoh') if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]", (module, out)
