@@ -32,8 +32,8 @@ import msgpack
 from benchmarks.harness import cpu_share, free_port, percentile, processes, start_router
 from viena.common.config import load_zenoh_config
 from viena.common.health import HEALTH
-from viena.paths import compose_dir
-from viena.recording import ReceiveClock, Recording, RecordingWriter
+from viena.common.paths import compose_dir
+from viena.common.recording import ReceiveClock, Recording, RecordingWriter
 
 CAR = "benchfox"
 PROBE_KEY = f"viena/{CAR}/bench/health"

@@ -33,7 +33,8 @@ from viena.services.gnss.driver.novatel import (
     decode_log,
     encode_log,
 )
-from viena.services.gnss.model.fix import FIX, fix_from_bestxyz
+from viena.services.gnss.fixes import fix_from_bestxyz
+from viena.services.gnss.model.fix import FIX
 from viena.services.gnss.simulator import NovatelTwin
 from viena.services.gnss.simulator.serve import parked_truth
 

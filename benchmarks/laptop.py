@@ -31,7 +31,7 @@ import msgpack
 from benchmarks.harness import cpu_share, percentile, processes, start_router
 from viena.common.config import load_zenoh_config
 from viena.common.keys import Keys
-from viena.recording import Recording, RecordingWriter
+from viena.common.recording import Recording, RecordingWriter
 
 CAR = "bench"
 #: (key under viena/<car>/, rate Hz, sample kind, schema) of the whole car

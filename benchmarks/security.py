@@ -52,7 +52,7 @@ from typing import Any, cast
 from benchmarks.harness import cpu_seconds, free_port, percentile, processes, wait_for_port
 from viena.common.config import load_zenoh_config
 from viena.common.secure import secure_client
-from viena.keys import main as keys_main
+from viena.keys_cli import main as keys_main
 
 VIENA = [sys.executable, "-m", "viena.cli"]
 CAR = "viena/elettra"

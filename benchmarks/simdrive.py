@@ -212,7 +212,7 @@ class TwinSensors:
         from viena.services.gnss.driver.novatel.enums import MessageId, TimeStatus
         from viena.services.gnss.driver.novatel.framing import Header
         from viena.services.gnss.driver.novatel.logs import LogMessage
-        from viena.services.gnss.model.fix import fix_from_bestxyz
+        from viena.services.gnss.fixes import fix_from_bestxyz
         from viena.services.gnss.simulator.errors import GnssErrorModel, SkyModel
         from viena.services.gnss.simulator.novatel_twin import bestxyz_of
         from viena.services.gnss.simulator.solution import TruthSolver

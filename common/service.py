@@ -134,7 +134,9 @@ class Service:
         self._declared.append(pub)
         return pub
 
-    def declare_subscriber(self, key: str, callback: Callable, **options):
+    def declare_subscriber(self, key: str, callback: Any, **options):
+        """`callback`: a function of the sample, or a zenoh handler (a RingChannel) that the
+        caller reads from, as zenoh's own declare_subscriber takes either."""
         sub = self.session.declare_subscriber(key, callback, **options)
         self._declared.append(sub)
         return sub

@@ -11,7 +11,7 @@
     --version            viena's version, and zenoh's and Python's
 
 Without --connect or a [zenoh] table, a process is a client of the profile running on this
-machine (`viena up` saved where its clients connect, viena/runstate.py), else of the router
+machine (`viena up` saved where its clients connect, common/runstate.py), else of the router
 on this machine (tcp/127.0.0.1:7447): the Pi's shape, where every process meets at the
 local router. A `tls/` endpoint makes the session present its identity (common/secure.py).
 
@@ -184,7 +184,7 @@ def zenoh_config(args: argparse.Namespace, toml: dict, default_mode: str = "clie
 def _local_router() -> tuple[list[str], dict[str, str]]:
     """Where the profile running on this machine says its clients connect (and its saved
     variables), else the router on this machine."""
-    from viena.runstate import running_connect
+    from viena.common.runstate import running_connect
 
     return running_connect() or ([DEFAULT_ROUTER], {})
 

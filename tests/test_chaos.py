@@ -44,9 +44,9 @@ import numpy as np
 import pytest
 
 from viena.common import clock
+from viena.common.recording import Recording, RecordingWriter, repair
 from viena.lockstep_car import RESTART_DELAY_S, LockstepCar, profile_programs
 from viena.record import FLUSH_PERIOD_S, Recorder
-from viena.recording import Recording, RecordingWriter, repair
 from viena.services.steering.client import ConflictingReplies, SteeringClient
 
 pytestmark = pytest.mark.slow

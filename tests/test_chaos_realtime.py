@@ -34,7 +34,7 @@ from test_chaos import (
 )
 from vienatest import VIENA, Processes, open_session, sim_profile_up, supervisor, wait_for_line, wait_until
 
-from viena.recording import Recording
+from viena.common.recording import Recording
 from viena.services.steering.client import SteeringClient
 
 pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=40)]

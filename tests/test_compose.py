@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from vienatest import VIENA, sim_profile_up, viena, wait_until
 
-from viena.runstate import process_alive
+from viena.common.runstate import process_alive
 
 pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=11)]  # whole profiles under supervisord
 

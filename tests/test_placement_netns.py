@@ -26,7 +26,7 @@ from pathlib import Path
 import pytest
 from vienatest import Processes
 
-from viena.paths import compose_dir
+from viena.common.paths import compose_dir
 
 pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=35)]  # two hosts, each with a whole profile
 

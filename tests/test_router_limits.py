@@ -14,7 +14,7 @@ from vienatest import wait_until
 
 from viena.common.access import ROLES
 from viena.common.config import load_zenoh_config
-from viena.paths import compose_dir
+from viena.common.paths import compose_dir
 
 KEY = "viena/elettra/steering/setpoint"
 #: the limit router.json5 sets per client and command key on puts

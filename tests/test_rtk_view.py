@@ -16,9 +16,9 @@ from rich.console import Console
 from vienatest import open_session, viena
 
 from viena.common.display import CORRECTIONS_STALE_S
+from viena.common.recording import RecordingWriter
 from viena.hz import CorrectionsMix, SolutionMix
 from viena.monitor import MonitorModel, render
-from viena.recording import RecordingWriter
 from viena.services.gnss.model.fix import FIX
 from viena.services.ntrip.model.corrections import CORRECTIONS, corrections_sample
 from viena.services.ntrip.model.state import STATE

@@ -18,8 +18,8 @@ from viena.services.estimator.service import EstimatorService
 from viena.services.gnss.service import GnssService
 from viena.services.sim.service import SimService
 from viena.services.steering.service import SteeringService
-from viena.settings import main as settings_main
-from viena.settings import services, stale_readmes
+from viena.settings_cli import main as settings_main
+from viena.settings_cli import services, stale_readmes
 
 COMPOSE = Path(__file__).resolve().parents[1] / "compose"
 SERVICES = services()

@@ -48,10 +48,10 @@ TOOLS = {
     "export": ("viena.export", "an MCAP recording as CSV, JSON or a file Foxglove opens"),
     "plot": ("viena.plot", "a recorded drive as a PNG"),
     "foxglove": ("viena.foxglove", "the car live in Foxglove or Lichtblick (WebSocket server)"),
-    "keys": ("viena.keys", "the car's certificates: init, issue, list, zenoh-config"),
+    "keys": ("viena.keys_cli", "the car's certificates: init, issue, list, zenoh-config"),
     "ntrip": ("viena.ntrip_cli", "NTRIP casters: a caster's source table, nearest mountpoints first"),
     "router": ("viena.router", "run a zenoh router"),
-    "settings": ("viena.settings", "every setting of a service: type, default, meaning"),
+    "settings": ("viena.settings_cli", "every setting of a service: type, default, meaning"),
     "sim": ("viena.sim_run", "closed-loop drives in virtual time: scenarios, a Monte-Carlo table"),
 }
 #: one program of a profile: `viena ACTION NAME`

@@ -27,10 +27,8 @@ from pathlib import Path
 from viena import programs
 from viena.common.config import load_toml
 from viena.common.errors import ConfigError
-from viena.paths import compose_dir
-from viena.profile_security import SecurityRefusal, secure_environment
-from viena.profile_security import programs as programs_in
-from viena.runstate import (  # noqa: F401
+from viena.common.paths import compose_dir
+from viena.common.runstate import (  # noqa: F401
     process_alive,
     profiles,
     read_environment,
@@ -39,6 +37,8 @@ from viena.runstate import (  # noqa: F401
     state_root,
     supervisord_pid,
 )
+from viena.profile_security import SecurityRefusal, secure_environment
+from viena.profile_security import programs as programs_in
 
 DEFAULT_PROFILE = "sim"
 _PORT_VAR = re.compile(r"(?:%\(ENV_|\$\{)(VIENA_[A-Z0-9_]*PORT)(?:\)s|:-(\d+)\}|\})")

@@ -14,10 +14,10 @@ import sys
 import threading
 import time
 
+from viena.common.recording import schema_name
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
 from viena.hz import RateMeter
-from viena.recording import schema_name
 from viena.tool import Connection, Fail, add_timeout_flag, guarded, key_expressions, tool_logging
 
 DURATION_S = 2.5

@@ -44,8 +44,8 @@ from pathlib import Path
 
 from viena import compose
 from viena.common.errors import ConfigError, InputError
+from viena.common.runstate import run_dir
 from viena.common.session import Unreachable, open_session, version_text, zenoh_config
-from viena.runstate import run_dir
 
 OK, WARN, FAIL = "OK", "WARN", "FAIL"
 DISK_FAIL_BYTES = 1e9
@@ -98,7 +98,7 @@ def profile_environment(profile: str) -> tuple[dict[str, str], bool]:
 
 def program_settings(program: Program, toml: dict, settings_path: str):
     """The settings the program runs with, read by its own service class."""
-    from viena.settings import services
+    from viena.settings_cli import services
 
     cls = services().get(program.service)
     if cls is None:

@@ -21,7 +21,7 @@ from typing import Any
 
 from viena.common.errors import InputError, SampleError
 from viena.common.payload import to_jsonable
-from viena.recording import KeyFilter, Recording
+from viena.common.recording import KeyFilter, Recording
 
 TIME_COLUMNS = ["log_time_ns", "publish_time_ns"]
 

@@ -40,9 +40,9 @@ import time
 from viena.common.access import ROLES
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
+from viena.common.recording import ReceiveClock
 from viena.common.session import PERSON_IDENTITY, add_common_arguments, config_endpoints
 from viena.common.signals import stop_on_signals
-from viena.recording import ReceiveClock
 from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions
 
 log = logging.getLogger("viena.foxglove")

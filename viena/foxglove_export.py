@@ -19,14 +19,14 @@ from pathlib import Path
 import foxglove
 from foxglove.mcap import MCAPWriteOptions
 
+from viena.common.recording import METADATA_NAME, KeyFilter, Recording
 from viena.foxglove_channels import FoxgloveChannels
-from viena.recording import METADATA_NAME, KeyFilter, Recording
 
 PROFILE = "viena-foxglove"
 
 
 class FoxgloveWriter:
-    """`RecordingWriter`'s interface (viena/recording.py), writing a Foxglove MCAP file:
+    """`RecordingWriter`'s interface (common/recording.py), writing a Foxglove MCAP file:
     `viena record --foxglove` passes one to its Recorder instead."""
 
     def __init__(self, path: str | Path, metadata: dict[str, str] | None = None, part_suffix: str = ".part"):

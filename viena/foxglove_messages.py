@@ -65,8 +65,8 @@ from viena.common.display import CORRECTIONS_STALE_S, number
 from viena.common.geodesy import LocalFrame
 from viena.common.json_schema import JsonForm
 from viena.common.payload import to_jsonable
+from viena.common.recording import decode_value
 from viena.common.schema import F, Schema, schema_of
-from viena.recording import decode_value
 from viena.services.pilot.model.path import checkpoints_enu
 
 #: the modules that own the car's schemas: importing them registers the schemas by name

@@ -30,9 +30,9 @@ from collections import Counter, deque
 from dataclasses import dataclass
 
 from viena.common.errors import SampleError
+from viena.common.recording import decode_value, human_bytes, schema_name
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
-from viena.recording import decode_value, human_bytes, schema_name
 from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions, tool_logging
 
 WINDOW = 200

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 
 from viena.common.errors import InputError, SampleError
+from viena.common.recording import Recording, decode_value, human_bytes
 from viena.hz import CorrectionsMix, SolutionMix, content_mix
-from viena.recording import Recording, decode_value, human_bytes
 from viena.tool import Fail, guarded
 
 

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from viena.common.errors import InputError, SampleError
-from viena.recording import Recording
+from viena.common.recording import Recording
 
 #: No-solution position the NovAtel receivers send (see services/gnss/model/fix.py).
 NO_FIX_ECEF = (100.0, 0.0, 0.0)

@@ -19,8 +19,8 @@ import xmlrpc.client
 from dataclasses import dataclass
 from pathlib import Path
 
+from viena.common.runstate import run_dir
 from viena.profile_security import programs as programs_in
-from viena.runstate import run_dir
 
 #: how long a program must stay in one run after its first word (and RUNNING)
 SETTLE_S = 2.0

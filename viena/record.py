@@ -26,9 +26,9 @@ from pathlib import Path
 from typing import Any
 
 from viena.common import clock
+from viena.common.recording import ReceiveClock, RecordingError, RecordingWriter, human_bytes, repair
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
-from viena.recording import ReceiveClock, RecordingError, RecordingWriter, human_bytes, repair
 from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions, tool_logging
 
 log = logging.getLogger("viena.record")

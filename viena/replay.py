@@ -20,9 +20,9 @@ from typing import Any
 from viena.common import clock
 from viena.common.errors import InputError
 from viena.common.keys import ROOT, Keys
+from viena.common.recording import KeyFilter, Recorded, Recording
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
-from viena.recording import KeyFilter, Recorded, Recording
 from viena.tool import Connection, Fail, add_timeout_flag, guarded, key_expressions, tool_logging
 
 log = logging.getLogger("viena.replay")

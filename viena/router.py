@@ -32,10 +32,10 @@ from viena.common.config import ConfigError, load_toml, load_zenoh_config
 from viena.common.keys import DEFAULT_CAR
 from viena.common.keystore import KeyStore
 from viena.common.log import setup_logging
+from viena.common.paths import router_config
 from viena.common.secure import is_loopback, is_secure, secure_router
 from viena.common.session import add_version_flag, check_endpoint, config_endpoints
 from viena.common.signals import stop_on_signals
-from viena.paths import router_config
 from viena.router_guard import DEFER_ACCEPT_S, HANDSHAKE_TIMEOUT_MS, defer_silent_connections, with_handshake_timeout
 from viena.router_log import ZenohLog
 

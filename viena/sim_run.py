@@ -43,10 +43,10 @@ from viena.common import clock
 from viena.common.health import HEALTH
 from viena.common.lockstep.scheduler import START_NS
 from viena.common.payload import parse_payload
+from viena.common.recording import RecordingWriter
 from viena.common.schema import unpack
 from viena.lockstep_car import SIM_TOML, LockstepCar
 from viena.record import Recorder
-from viena.recording import RecordingWriter
 from viena.scenario import Event, Scenario, ScenarioError
 from viena.services.estimator.state import CHI2_2D_95
 from viena.services.estimator.state import STATE as ESTIMATE

@@ -35,6 +35,8 @@ from __future__ import annotations
 import math
 from collections import deque
 
+from viena.services.estimator.settings import EstimatorSettings
+
 #: the drift: the fixes' position, smoothed over about DRIFT_TAU_S, moved over DRIFT_SPAN_S
 #: (a rate from one fix to the next is the fixes' noise over 50 ms, metres a second)
 DRIFT_TAU_S = 1.0
@@ -52,7 +54,7 @@ class _Receiver:
     __slots__ = ("passing_since", "failing_since", "admitted", "smooth", "anchor", "speed", "rate", "why", "kind",
                  "kind_changes")
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.passing_since: int | None = None
         self.failing_since: int | None = None
         self.admitted = False
@@ -79,6 +81,7 @@ class _Receiver:
         self.smooth = (t, self.smooth[1] + k * (e - self.smooth[1]), self.smooth[2] + k * (n - self.smooth[2]))
         if speed is not None:
             self.speed += k * (speed - self.speed)
+        assert self.anchor is not None, "the anchor is set whenever the smoothed position is"
         span = (t - self.anchor[0]) * 1e-9
         if span >= DRIFT_SPAN_S:
             self.rate = math.hypot(self.smooth[1] - self.anchor[1], self.smooth[2] - self.anchor[2]) / span
@@ -87,7 +90,7 @@ class _Receiver:
 
 
 class Admission:
-    def __init__(self, settings):
+    def __init__(self, settings: EstimatorSettings) -> None:
         s = settings
         self.hold_ns = int(s.admit_hold_s * 1e9)
         self.min_sats = s.admit_min_sats

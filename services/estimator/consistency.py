@@ -55,8 +55,8 @@ KINDS = ("position", "velocity", "course", "heading")
 class Consistency:
     def __init__(self, inflate_after_s: float = 2.5):
         self.inflate_after_ns = int(inflate_after_s * 1e9)
-        self.nis = {k: None for k in KINDS}            # average d2 per dimension
-        self.test_ratio = {k: None for k in KINDS}     # last d2 / gate
+        self.nis: dict[str, float | None] = {k: None for k in KINDS}          # average d2 per dimension
+        self.test_ratio: dict[str, float | None] = {k: None for k in KINDS}   # last d2 / gate
         self._velocity_seen = AVERAGE_UPDATES     # updates since the last velocity one
         self._report: tuple | None = None         # the rounded figures, until they change
         self.restart()

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 
 class Counters:
-    def __init__(self):
+    def __init__(self) -> None:
         self.counts = {"imu": 0, "gnss": 0, "gnss_decimated": 0, "imu_gaps": 0, "resets": 0,
                        "mag_rejected": 0, "nhc": 0, "zupt": 0, "course_used": 0, "inflations": 0,
                        "gnss_kind_changes": 0, "kind_steps_believed": 0}

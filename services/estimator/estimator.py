@@ -61,9 +61,9 @@ class Estimator:
 
     def __init__(self, settings: EstimatorSettings | Mapping | None = None,
                  clock: Callable[[], int] | None = None, log: logging.Logger | None = None):
-        if not isinstance(settings, EstimatorSettings):
-            settings = from_mapping(EstimatorSettings, settings, "estimator settings")
-        s = self.settings = settings
+        s: EstimatorSettings = settings if isinstance(settings, EstimatorSettings) \
+            else from_mapping(EstimatorSettings, settings, "estimator settings")
+        self.settings = s
         self.log = log or logging.getLogger("viena.estimator")
         self._limits = ImuLimits(s.max_accel_g * _G, math.radians(s.max_gyro_dps))
         self._imu_gap_s = s.imu_gap_s
@@ -75,7 +75,8 @@ class Estimator:
             s.accel_psd, s.accel_bias_walk_psd, s.free_accel_psd, tuple(s.accel_bias_sigma_mps2),
             s.tilt_walk_psd, math.radians(s.tilt_sigma_deg), s.gnss_bias_tau_s,
             s.gnss_common_fraction, s.gnss_consider_errors)
-        self._quiet = (None, None, False)   # standstill thresholds learnt (kept across resets)
+        #: standstill thresholds learnt (kept across resets): see Standstill.learnt
+        self._quiet: tuple[float | None, float | None, bool] = (None, None, False)
         self.accel_enu = (0.0, 0.0, 0.0)    # the car's acceleration by the IMU, last sample
         self.counters = Counters()
         self.timeline = Timeline(s, clock)
@@ -92,7 +93,7 @@ class Estimator:
         # how the filter judges each source, and itself
         self.consistency = Consistency(inflate_after_s=0.5 * s.gnss_reset_s)
         self.gnss = GnssUpdate(self)
-        self.standstill = None
+        self.standstill: Standstill     # made by _restart, as are the other parts
         self._restart()
 
     # -- public ----------------------------------------------------------------------------
@@ -305,12 +306,12 @@ class Estimator:
             return
 
         r = att.rot
-        speed = None
+        forward_mps: float | None = None
         if kf.initialized and heading.valid:
-            speed = r[1] * kx[3] + r[4] * kx[4] + r[7] * kx[5]     # along the car's forward axis
+            forward_mps = r[1] * kx[3] + r[4] * kx[4] + r[7] * kx[5]     # along the car's forward axis
         speed_t = self.gnss.speed_t
         aided = speed_t is not None and t - speed_t < 1_000_000_000
-        att.update(dt, fx, fy, fz, gx, gy, gz, mag, speed, aided, standstill.still)
+        att.update(dt, fx, fy, fz, gx, gy, gz, mag, forward_mps, aided, standstill.still)
         if dt > 0.0:
             heading.filter.pending_s += dt
         if not kf.initialized:

@@ -27,6 +27,8 @@ it. No average over a spell of such fixes would learn that.
 """
 from __future__ import annotations
 
+from typing import Any
+
 #: the solution kinds whose split is known from their sigma, not learnt
 CARRIER_KINDS = ("float", "fixed")
 
@@ -58,7 +60,7 @@ class WhiteShare:
         self.learns = learns
         self.horizontal = self.vertical = max(MIN_SHARE, min(1.0, prior))
         self.n = 0
-        self._last = None                  # (t, fix ENU, antenna ENU by the IMU alone)
+        self._last: tuple[int, Any, Any] | None = None   # (t, fix ENU, antenna ENU by the IMU alone)
 
     @classmethod
     def of_kind(cls, kind: str, prior: float) -> WhiteShare:

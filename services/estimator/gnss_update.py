@@ -84,7 +84,7 @@ STEP_BELIEVED_SIGMAS = 3.0
 class GnssUpdate:
     """The estimator's GNSS side; `est` is the Estimator, whose current filters it corrects."""
 
-    def __init__(self, est):
+    def __init__(self, est) -> None:
         self.est = est
         s = self.settings = est.settings
         self.lever_default = tuple(float(v) for v in s.default_lever_arm_m)
@@ -118,7 +118,8 @@ class GnssUpdate:
         self.reject_since: int | None = None    # usable fixes failing the gate since
         self.last_refused_t = 0                 # ... the last of them
         self.contradicted = 0                   # fixes in a row whose velocity the IMU's left far
-        self.speed, self.speed_t = math.inf, None   # last GNSS horizontal speed, and its time
+        self.speed: float = math.inf            # last GNSS horizontal speed, ...
+        self.speed_t: int | None = None         # ... and its time
         self.vel_refused: dict[str, int] = {}   # each receiver's velocities refused in a row
         self.positions: dict[str, list] = {}    # a position-only receiver's recent positions
         #: receivers whose next fix steps to a better kind: the old kind's level (variances E, N, U)
@@ -182,7 +183,9 @@ class GnssUpdate:
             counters.counts["gnss_decimated"] += 1
             return
         self.used_fix_t[unit] = fix.t
-        if max(fix.enu_sigma_m or fix.ecef_sigma_m) > s.max_pos_sigma_m:
+        sigma = fix.enu_sigma_m or fix.ecef_sigma_m
+        assert sigma is not None, "read_fix refuses a fix with neither ECEF nor ENU sigmas"
+        if max(sigma) > s.max_pos_sigma_m:
             counters.gnss("sigma")
             return
         if est.frame is None:
@@ -217,7 +220,8 @@ class GnssUpdate:
         r = att.rot
         known_att = att.aligned and est.heading.valid
         arm = rotate(r, lever) if known_att else (0.0, 0.0, 0.0)
-        vel = velR = None
+        vel: tuple[float, float, float] | None = None
+        velR: np.ndarray | None = None
         if fix.vel_ecef_mps is not None:
             vel = frame.vector_to_enu(fix.vel_ecef_mps)
             sig = fix.vel_sigma_mps or (s.vel_sigma_default_mps,) * 3
@@ -250,19 +254,21 @@ class GnssUpdate:
         # each fix's: one fix with a wild sigma says little about the sky's error. A
         # carrier-phase receiver's growing sigma is its corrections ageing (an RTK solution
         # extrapolates them: centimetres a second): that size counts at once
-        level = self.level.get(unit)
-        if level is None:
+        smoothed = self.level.get(unit)
+        level: list[float]
+        if smoothed is None:
             level = var.tolist()
         else:
-            k = min(1.0, max(0.0, (fix.t - level[3]) * 1e-9) / LEVEL_TAU_S)
-            level = [level[i] + k * (var[i] - level[i]) for i in range(3)]
+            k = min(1.0, max(0.0, (fix.t - smoothed[3]) * 1e-9) / LEVEL_TAU_S)
+            level = [smoothed[i] + k * (var[i] - smoothed[i]) for i in range(3)]
             if not share.learns:
                 level = [max(level[i], var[i]) for i in range(3)]
         self.level[unit] = (*level[:3], fix.t)
         if share.learns:
             wander_var = ((1.0 - sh) * level[0], (1.0 - sh) * level[1], (1.0 - sv) * level[2])
         elif floor is not None:             # what a carrier-phase receiver says beyond its noise
-            wander_var = tuple(level[i] - floor[i] * floor[i] for i in range(3))
+            wander_var = (level[0] - floor[0] * floor[0], level[1] - floor[1] * floor[1],
+                          level[2] - floor[2] * floor[2])
         else:
             wander_var = (0.0, 0.0, 0.0)
         wander = tuple(max(MIN_WANDER_M, math.sqrt(max(0.0, v))) for v in wander_var)
@@ -321,6 +327,7 @@ class GnssUpdate:
                 self.speed, self.speed_t = math.hypot(vel[0], vel[1]), fix.t
                 nu_v = [vel[0] - v[0], vel[1] - v[1], vel[2] - v[2]]
                 if imu_mode:
+                    assert velR is not None, "a velocity comes with its covariance"
                     self.timing.course(fix.t - int(latency * 1e9), vel[0], vel[1],
                                        float(velR[0, 0] + velR[1, 1]) * 0.5)
                     dt2 = self.time_var()
@@ -384,6 +391,7 @@ class GnssUpdate:
             # a velocity refused again and again may be right and the yaw wrong: let the
             # heading filter judge its course, as uncertain as the disagreement is large
             n = self.vel_refused[unit] = self.vel_refused.get(unit, 0) + 1
+            assert vel is not None, "an innovation nu_v comes from a velocity"
             speed2 = vel[0] * vel[0] + vel[1] * vel[1]
             if n >= COURSE_AFTER_REFUSALS and speed2 > 0.0:
                 course_var += (nu_v[0] * nu_v[0] + nu_v[1] * nu_v[1]) / speed2

@@ -329,7 +329,7 @@ class NavKalman:
         innovation, R) rows that ride along ungated (the car's pseudo-measurements).
         Returns (pos_ok, vel_ok, dx, d2_pos, d2_vel): the blocks' NIS (nan when absent)."""
         self.flush()
-        k = self.receivers.get(unit)
+        k = self.receivers.get(unit) if unit is not None else None
         PHt, S, nu = self._stack(nu_p, R_p, nu_v, R_v, extra, k)
         j = 3 if nu_p is not None else 0         # where the velocity rows start in S
         d2p = quadratic(inverse_small(S[0:3, 0:3]), nu_p) if nu_p is not None else math.nan
@@ -359,7 +359,7 @@ class NavKalman:
     def position_innovation_cov(self, R_p, unit: str | None = None) -> np.ndarray:
         """S of a position fix of `unit` with covariance R_p, as of now."""
         self.flush()
-        H = self._h_pos(self.receivers.get(unit))
+        H = self._h_pos(self.receivers.get(unit) if unit is not None else None)
         return H @ self.P @ H.T + R_p
 
     def _h_pos(self, k) -> np.ndarray:

@@ -160,7 +160,7 @@ class Timeline:
         now = []
         while pending and (quiet or pending[0][0] < fix.t - self.wait_ns):
             now.append(heapq.heappop(pending)[2])
-        if not quiet and t_imu < fix.t < t_imu + self.wait_ns:
+        if not quiet and t_imu is not None and t_imu < fix.t < t_imu + self.wait_ns:   # (quiet if None)
             self._n += 1
             heapq.heappush(pending, (fix.t, self._n, fix))
         else:

@@ -44,7 +44,7 @@ _ZERO_LAG = int(np.argmin(np.abs(LAGS_S)))
 
 
 class OffsetHint:
-    def __init__(self):
+    def __init__(self) -> None:
         self._stamps: deque = deque()       # stamps (ns) on a GRID_NS grid ...
         self._yaws: deque = deque()         # ... and the yaw integrated from the gyro then, rad
         self._yaw = 0.0

@@ -57,7 +57,8 @@ from viena.services.gnss.driver.novatel.enums import DgpsType
 from viena.services.gnss.driver.novatel.feed import DROP_REASONS, CorrectionsFeed, Taken, line_bytes_per_s
 from viena.services.gnss.driver.novatel.receiver import CorrectionsSetup
 from viena.services.gnss.driver.novatel.writer import CorrectionsWriter, SecondPort
-from viena.services.gnss.model.fix import FIX, NovatelFixBuilder, fix_from_nmea, solution_kind
+from viena.services.gnss.fixes import NovatelFixBuilder, fix_from_nmea
+from viena.services.gnss.model.fix import FIX, solution_kind
 from viena.services.ntrip.model.corrections import CORRECTIONS, read_corrections
 
 USAGE = __doc__

@@ -108,7 +108,7 @@ class DriveData:
 
 def read_drive(path: Path, unit: str, gnss_unit: str | None) -> DriveData:
     """The unit's samples and one receiver's fixes from a recording."""
-    from viena.recording import Recording
+    from viena.common.recording import Recording
 
     samples: list[dict] = []
     fixes_by_unit: dict[str, list[dict]] = {}

@@ -89,7 +89,7 @@ class NtripService(Service):
     settings_class = NtripSettings
     description = USAGE
 
-    def __init__(self, args):
+    def __init__(self, args) -> None:
         super().__init__(args)
         s = self.settings
         where = f"{getattr(args, 'config', None) or 'flags'} [ntrip]"
@@ -143,7 +143,8 @@ class NtripService(Service):
         self.state_pub = self.publisher(self.keys.key("ntrip", "state"), STATE)
         self._fixes = None
         if s.gga_interval_s > 0:
-            self._fixes = self.declare_subscriber(self.keys.key("gnss", "*", "fix"), zenoh.handlers.RingChannel(1))
+            self._fixes = self.declare_subscriber(
+                self.keys.key("gnss", "*", "fix"), zenoh.handlers.RingChannel(1))
         for kind in ERROR_KINDS:
             self.health.error(kind, 0)
         self.health.set("caster", self.address.source)

@@ -114,13 +114,14 @@ class PilotService(Service):
             key = self.keys.key("pilot", kind)
             self.declare_queryable(key, self.inbox.on_query(kind, key, USAGE[kind]))
             self.declare_subscriber(key, self.inbox.on_put(kind))
-        self._estimates = self.declare_subscriber(self.keys.key(s.estimate_key), zenoh.handlers.RingChannel(1))
+        self._estimates = self.declare_subscriber(
+            self.keys.key(s.estimate_key), zenoh.handlers.RingChannel(1))
         self._steering: tuple | None = None           # (read monotonic, armed, owner, trip)
         self._owner: str | None = None
         self._armed_at = 0.0                           # monotonic, when the arm was granted
         if s.setpoints_as == "put":
-            self._steering_states = self.declare_subscriber(self.keys.key("steering", "state"),
-                                                            zenoh.handlers.RingChannel(1))
+            self._steering_states = self.declare_subscriber(
+                self.keys.key("steering", "state"), zenoh.handlers.RingChannel(1))
         self.declare_subscriber(self.keys.key("steering", "estop"), self._on_estop)
         self.inbox.start()
         self._thread = clock.Thread(target=self._run, name="pilot", daemon=True)
@@ -258,7 +259,9 @@ class PilotService(Service):
             self._conflict(exc)
             return
         self.health.count("setpoint")
-        self._latencies.add((clock.time_ns() - self.pilot.estimate.t_ns) * 1e-9)
+        est = self.pilot.estimate
+        assert est is not None, "a setpoint is made from an estimate"
+        self._latencies.add((clock.time_ns() - est.t_ns) * 1e-9)
         now = clock.monotonic()
         if str(reply.get("reason", "")).startswith("no answer"):
             # a lost answer is not a refusal: keep streaming, until the steering's own
@@ -301,7 +304,9 @@ class PilotService(Service):
         # From the estimate's stamp to the setpoint made from it sent (or answered, for
         # queries). The stamp is the estimator's clock: on one machine, or machines kept in
         # sync, it is the whole way from the sensors' time to the steering.
-        self._latencies.add((clock.time_ns() - self.pilot.estimate.t_ns) * 1e-9)
+        est = self.pilot.estimate
+        assert est is not None, "a setpoint is made from an estimate"
+        self._latencies.add((clock.time_ns() - est.t_ns) * 1e-9)
 
     def _give_back_lease(self) -> None:
         """No more setpoints, then disarm (a lease the steering already dropped is simply

@@ -9,8 +9,8 @@ import msgpack
 import pytest
 from vienatest import viena, wait_for_line
 
+from viena.common.recording import RecordingWriter
 from viena.hz import RateMeter
-from viena.recording import RecordingWriter
 from viena.sub import MISSING, field, select
 
 TRUTH = "viena/elettra/sim/truth"

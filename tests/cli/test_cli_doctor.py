@@ -12,8 +12,8 @@ import pytest
 from vienatest import sim_profile_up, viena
 
 from viena import doctor
+from viena.common.paths import compose_dir
 from viena.doctor import FAIL, OK, WARN
-from viena.paths import compose_dir
 from viena.profile_security import programs as programs_in
 
 LINE = re.compile(r"^(OK|WARN|FAIL) +\S.*?: .+$")

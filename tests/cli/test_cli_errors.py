@@ -42,7 +42,7 @@ def test_no_router_is_one_line_naming_the_endpoint_after_the_timeout(tool, tmp_p
 
 
 def test_replay_without_a_router_too(tmp_path):
-    from viena.recording import RecordingWriter
+    from viena.common.recording import RecordingWriter
 
     path = tmp_path / "one.mcap"
     writer = RecordingWriter(path)

@@ -14,7 +14,7 @@ import pytest
 
 from viena import cli
 from viena.common.service import build_parser as service_parser
-from viena.settings import services
+from viena.settings_cli import services
 
 CONNECTION_FLAGS = ("--connect", "--car", "--config", "--identity", "--keys", "--log-level", "--version")
 CLIENT_TOOLS = ("sub", "record", "replay", "monitor", "list", "hz")

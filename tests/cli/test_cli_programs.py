@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from vienatest import VIENA, sim_profile_up, viena, wait_for_line, wait_until
 
-from viena.paths import compose_dir
+from viena.common.paths import compose_dir
 from viena.profile_security import programs as programs_in
 
 pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=9)]  # whole profiles under supervisord

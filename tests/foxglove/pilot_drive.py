@@ -10,7 +10,7 @@ from pathlib import Path
 import pymap3d
 from laptop_helpers import TRUTH_KEY, write_drive
 
-from viena.recording import Recording, RecordingWriter
+from viena.common.recording import Recording, RecordingWriter
 from viena.services.pilot.model.route import parse_route
 from viena.services.pilot.model.state import PATH, STATE, path_sample
 

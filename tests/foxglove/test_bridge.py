@@ -13,8 +13,8 @@ import pytest
 from foxglove_client import FoxgloveClient, decoder
 from vienatest import Processes, free_port, open_session, start_router, wait_for_line, wait_for_subscriber
 
+from viena.common.paths import compose_dir
 from viena.foxglove import QUEUE_SAMPLES
-from viena.paths import compose_dir
 from viena.services.gnss.model.fix import FIX
 from viena.services.sim.model.truth import TRUTH
 

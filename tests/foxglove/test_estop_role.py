@@ -9,7 +9,7 @@ from viena.tool import Connection
 
 @pytest.fixture(scope="module")
 def keys(tmp_path_factory):
-    from viena.keys import main
+    from viena.keys_cli import main
 
     directory = tmp_path_factory.mktemp("keys") / "elettra"
     assert main(["--keys", str(directory), "init"]) == 0

@@ -11,7 +11,7 @@ from foxglove_client import as_advertised, decoder, read_all
 from laptop_helpers import FIX_ENCODING, viena, write_drive
 from mcap.reader import make_reader
 
-from viena.recording import RecordingWriter
+from viena.common.recording import RecordingWriter
 
 FIX_KEY = "viena/elettra/gnss/gnss0/fix"
 KNOWN = {("json", "jsonschema"), ("json", ""), ("protobuf", "protobuf")}

@@ -10,8 +10,8 @@ from laptop_helpers import write_drive
 import viena.foxglove_messages  # noqa: F401  (registers every schema of the car)
 from viena.common.json_schema import JsonForm, field_schema, json_schema
 from viena.common.payload import to_jsonable
+from viena.common.recording import Recording
 from viena.common.schema import SCHEMAS, F, SampleError, Schema
-from viena.recording import Recording
 
 CAR_SCHEMAS = ["viena.gnss.fix/1", "viena.imu.sample/1", "viena.steering.state/1",
                "viena.estimator.state/2", "viena.sim.truth/1", "viena.health/1", "viena.pilot.state/1"]

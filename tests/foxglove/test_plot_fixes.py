@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from laptop_helpers import write_drive
 
+from viena.common.recording import Recording
 from viena.plot import align_deg, direction_arrows, draw, load_drive, unwrap_deg
-from viena.recording import Recording
 
 
 def test_yaw_through_south_is_one_ramp_not_a_saw_tooth():

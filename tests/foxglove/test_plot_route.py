@@ -9,8 +9,8 @@ import pytest
 from laptop_helpers import TRUTH_KEY, write_drive
 from pilot_drive import checkpoints_of, geojson_route, write_pilot_drive
 
+from viena.common.recording import Recording
 from viena.plot import PILOT_STATE_GAP_S, draw, load_drive, pilot_following
-from viena.recording import Recording
 
 SECONDS = 20.0
 STOP_REASON = "cross-track error 3.1 m > 2.0 m"

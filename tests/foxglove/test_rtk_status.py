@@ -15,8 +15,8 @@ from laptop_helpers import viena
 
 from viena.common.display import CORRECTIONS_STALE_S
 from viena.common.json_schema import json_schema
+from viena.common.recording import RecordingWriter
 from viena.foxglove_messages import GNSS_STATUS, NTRIP_STATUS, Converter
-from viena.recording import RecordingWriter
 from viena.services.gnss.model.fix import FIX
 from viena.services.ntrip.model.corrections import CORRECTIONS, corrections_sample
 from viena.services.ntrip.model.state import STATE

@@ -17,7 +17,8 @@ from viena.services.gnss.driver.novatel import (
     PositionType,
     SolutionStatus,
 )
-from viena.services.gnss.model.fix import FIX, NovatelFixBuilder, fix_from_bestxyz, fix_from_nmea
+from viena.services.gnss.fixes import NovatelFixBuilder, fix_from_bestxyz, fix_from_nmea
+from viena.services.gnss.model.fix import FIX
 
 WEEK, MS = 1899, 296_450_300
 T_HOST = gps_to_utc_ns(WEEK, MS) + 30_000_000

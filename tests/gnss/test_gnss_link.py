@@ -21,7 +21,7 @@ from viena.services.gnss.driver.novatel import (
     StartupConfig,
     Trigger,
 )
-from viena.services.gnss.model.fix import fix_from_bestxyz, fix_from_nmea
+from viena.services.gnss.fixes import fix_from_bestxyz, fix_from_nmea
 from viena.services.gnss.simulator import NovatelTwin
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(60)]  # receivers and twins talk in real time

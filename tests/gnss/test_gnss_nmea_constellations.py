@@ -12,7 +12,7 @@ import datetime as dt
 import pytest
 
 from viena.services.gnss.driver.nmea import NmeaDecoder
-from viena.services.gnss.model.fix import fix_from_nmea
+from viena.services.gnss.fixes import fix_from_nmea
 
 HOST_NS = calendar.timegm(dt.datetime(2026, 11, 23, 12, 0, 5).timetuple()) * 1_000_000_000
 

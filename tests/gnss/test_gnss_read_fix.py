@@ -18,7 +18,8 @@ from viena.services.gnss.driver.novatel import (
     PositionType,
     SolutionStatus,
 )
-from viena.services.gnss.model.fix import FIX, Fix, fix_from_bestpos, fix_from_bestxyz, fix_from_nmea, read_fix
+from viena.services.gnss.fixes import fix_from_bestpos, fix_from_bestxyz, fix_from_nmea
+from viena.services.gnss.model.fix import FIX, Fix, read_fix
 
 WEEK, MS = 1899, 296_450_300
 T = gps_to_utc_ns(WEEK, MS)

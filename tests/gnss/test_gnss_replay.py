@@ -17,7 +17,7 @@ from viena.services.gnss.driver.novatel import (
     StartupConfig,
     Trigger,
 )
-from viena.services.gnss.model.fix import fix_from_bestxyz
+from viena.services.gnss.fixes import fix_from_bestxyz
 from viena.services.gnss.simulator import DRIVE_CSV, NovatelTwin, load_drive
 
 ROWS = read_csv()

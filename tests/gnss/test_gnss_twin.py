@@ -29,7 +29,7 @@ from viena.services.gnss.driver.novatel import (
     Unlogall,
     encode_frame,
 )
-from viena.services.gnss.model.fix import fix_from_bestpos, fix_from_bestxyz, fix_from_nmea
+from viena.services.gnss.fixes import fix_from_bestpos, fix_from_bestxyz, fix_from_nmea
 from viena.services.gnss.simulator import NmeaTwin, NovatelTwin
 from viena.services.gnss.simulator.errors import CEP_PER_SIGMA, GnssErrorModel
 from viena.services.sim.model.truth import IST_ORIGIN

@@ -21,7 +21,7 @@ import pymap3d
 import pytest
 
 from benchmarks.simdrive import Drive, DriveSamples
-from viena.recording import RecordingWriter
+from viena.common.recording import RecordingWriter
 from viena.services.gnss.model.fix import FIX
 from viena.services.imu import drive_calibration
 from viena.services.imu.calibration_cli import main as calibrate

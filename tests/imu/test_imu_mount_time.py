@@ -16,7 +16,7 @@ from test_drive_calibration import accelerometer_mount, sim_drive
 from benchmarks.imu import LEVER_ARM_M
 from benchmarks.imu import mounted_drive as drive
 from benchmarks.simdrive import Drive, DriveSamples
-from viena.recording import RecordingWriter
+from viena.common.recording import RecordingWriter
 from viena.services.gnss.model.fix import FIX
 from viena.services.imu.calibration_cli import main as calibrate
 from viena.services.imu.calibration_file import load_calibration

@@ -10,7 +10,7 @@ import msgpack
 import numpy as np
 from vienatest import VIENA, viena  # noqa: F401  (the laptop tests import them from here)
 
-from viena.recording import RecordingWriter
+from viena.common.recording import RecordingWriter
 
 TRUTH_KEY = "viena/elettra/sim/truth"
 SIM_HEALTH_KEY = "viena/elettra/sim/health"

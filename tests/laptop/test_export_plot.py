@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from laptop_helpers import TRUTH_KEY, viena, write_drive, yaw_deg
 
+from viena.common.recording import Recording, RecordingWriter
 from viena.export import flatten
 from viena.plot import load_drive
-from viena.recording import Recording, RecordingWriter
 
 FIX_KEY = "viena/elettra/gnss/gnss0/fix"
 

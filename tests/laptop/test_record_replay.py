@@ -11,7 +11,7 @@ from laptop_helpers import SIM_HEALTH_KEY, TRUTH_KEY, VIENA, start_sim, viena, w
 from mcap.reader import make_reader
 from vienatest import Processes, open_session, start_router, wait_for_line, wait_for_subscriber, wait_until
 
-from viena.recording import Recording
+from viena.common.recording import Recording
 
 pytestmark = pytest.mark.slow  # a router, the sim and the CLI as processes
 

@@ -13,7 +13,7 @@ import pytest
 from laptop_helpers import VIENA, viena
 from vienatest import open_session, wait_for_line, wait_for_subscriber, wait_until
 
-from viena.recording import Recording, RecordingError, RecordingWriter
+from viena.common.recording import Recording, RecordingError, RecordingWriter
 
 KEY = "viena/elettra/test/sample"
 ENCODING = "application/msgpack;viena.test/1"

@@ -7,9 +7,9 @@ estimator's.)"""
 from __future__ import annotations
 
 from viena.common import clock
+from viena.common.recording import KeyFilter, Recording, RecordingWriter
 from viena.lockstep_car import LockstepCar
 from viena.record import Recorder
-from viena.recording import KeyFilter, Recording, RecordingWriter
 from viena.replay import Player
 from viena.services.estimator.state import STATE
 

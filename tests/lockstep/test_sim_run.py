@@ -11,7 +11,7 @@ import pytest
 
 from viena import scenario as scenarios
 from viena.cli import main
-from viena.recording import Recording
+from viena.common.recording import Recording
 from viena.scenario import ScenarioError
 
 #: a short drive that has every kind of event: the pilot starts at about 12 s

@@ -11,7 +11,7 @@ from viena.common.keystore import KeyStore
 @pytest.fixture(scope="module")
 def store(tmp_path_factory) -> KeyStore:
     """The car's CA, router and standard identities, made by `viena keys init`."""
-    from viena.keys import main
+    from viena.keys_cli import main
 
     directory = tmp_path_factory.mktemp("keys") / "elettra"
     assert main(["--keys", str(directory), "init"]) == 0

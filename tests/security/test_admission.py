@@ -14,7 +14,7 @@ from test_router_tls import ask, client, drain, raw_client, received, steering_q
 from vienatest import free_port, wait_for_line, wait_for_port, wait_for_queryable, wait_for_subscriber
 
 from viena.common.keystore import KeyStore
-from viena.keys import main as keys
+from viena.keys_cli import main as keys
 
 pytestmark = pytest.mark.slow  # two TLS routers
 

@@ -9,7 +9,7 @@ import stat
 import pytest
 
 from viena.common.keystore import STANDARD_IDENTITIES, KeyStore, SecurityError
-from viena.keys import main as keys
+from viena.keys_cli import main as keys
 
 
 def run_keys(capsys, directory, *args) -> tuple[int, str, str]:

@@ -79,7 +79,7 @@ def test_viena_up_refuses_in_one_line_and_starts_nothing(tmp_path):
 def test_the_pi_store_made_as_the_docs_say_starts_the_pi_profile(store, tmp_path):
     """docs/deployment.md: `viena keys export router gnss0 gnss1 razor0 steering estimator
     autopilot -o DIR` on the trusted machine is all the Pi needs; no ca.key, no person's key."""
-    from viena.keys import main as keys
+    from viena.keys_cli import main as keys
 
     pi = tmp_path / "pi-keys"
     assert keys(["--keys", str(store.dir), "export", "router", "gnss0", "gnss1", "razor0", "steering",

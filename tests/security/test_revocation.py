@@ -16,7 +16,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from viena.common.config import load_zenoh_config
 from viena.common.keystore import KeyStore, SecurityError, common_name, name_of
 from viena.common.secure import secure_router
-from viena.keys import main as keys
+from viena.keys_cli import main as keys
 
 #: what the Pi runs, as docs/deployment.md exports it
 PI = ["router", "gnss0", "gnss1", "razor0", "steering", "estimator", "autopilot"]

@@ -16,7 +16,7 @@ class GpsClock:
     clock is the truest one a simulation has (the car's truth follows it too).
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.offset_ms: float | None = None     # GPS ms = now_s * 1000 + offset_ms
 
     def anchor(self, now_s: float, gps_ms: float | None = None) -> None:
@@ -30,7 +30,9 @@ class GpsClock:
 
     def gps_ms(self, now_s: float) -> int:
         """GPS time at ``now_s``, ms since the GPS epoch (rounded down)."""
+        assert self.offset_ms is not None, "anchored first (anchor or ensure)"
         return int(math.floor(now_s * 1000.0 + self.offset_ms))
 
     def now_of(self, gps_ms: float) -> float:
+        assert self.offset_ms is not None, "anchored first (anchor or ensure)"
         return (gps_ms - self.offset_ms) / 1000.0

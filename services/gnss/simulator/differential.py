@@ -130,10 +130,11 @@ class DifferentialErrors:
             self._sizes = (errors.cep_m, np.maximum(errors.common_rms(), 1e-9), errors.own_variance())
         return self._sizes[1], self._sizes[2]
 
-    def step(self, status: RtkStatus, gps_ms: int, single: np.ndarray):
+    def step(self, status: RtkStatus, gps_ms: int, single: np.ndarray | None):
         if status.phase not in ("dgps", "float", "fixed"):
             self._epoch = None
             return None
+        assert single is not None, "a differential status comes with the single-point error"
         t = gps_ms / 1000.0
         dt = 0.0 if self._t is None else max(0.0, t - self._t)
         self._t = t

@@ -118,7 +118,8 @@ class CommonErrors:
         self.sources = tuple(s for s in sources if s.common)
         self.tau = tuple(s.tau_s for s in self.sources)
         self.step_ms = step_ms
-        self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=max(2, int(history_s * 1000 / step_ms)))
+        self._kept_steps = max(2, int(history_s * 1000 / step_ms))
+        self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=self._kept_steps)
         self._lock = threading.Lock()
 
     @property
@@ -132,7 +133,7 @@ class CommonErrors:
             h = self._history
             if not h:
                 h.append((k, self.rng.standard_normal((len(self.sources), 3))))
-            elif k - h[-1][0] > h.maxlen:
+            elif k - h[-1][0] > self._kept_steps:
                 # a long pause: one step across it, and the grid starts again there
                 dt_s = (k - h[-1][0]) * self.step_ms / 1000.0
                 z = _gauss_markov_step(h[-1][1], self.tau, dt_s, self.rng)
@@ -557,6 +558,7 @@ class SkyModel:
         if self._next_change is None:
             self._next_change = t_s + float(self.rng.uniform(5.0, 15.0))
             self._outage_start = t_s + self._draw_interval()
+        assert self._outage_start is not None, "drawn with the first change, at the first call"
         while t_s >= self._next_change:
             lo, hi = self.sats_range
             self._sats = int(np.clip(self._sats + self.rng.choice((-1, 1)), lo, hi))

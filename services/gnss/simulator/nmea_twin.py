@@ -154,6 +154,7 @@ class NmeaTwin(ByteTwin):
                 gps_ms = self._next_epoch_ms
                 self._next_epoch_ms += self.period_ms
                 utc_ns = gps_to_utc_ns(*divmod(gps_ms, WEEK_MS))
+                assert self.solver is not None, "no replay: the twin was given truth"
                 self._out += self._epoch(self.solver.solve(gps_ms, utc_ns))
         out = bytes(self._out)
         self._out.clear()

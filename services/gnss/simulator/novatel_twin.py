@@ -273,7 +273,7 @@ class NovatelTwin(ByteTwin):
         # ports, line and clock
         self.com1 = ReceiverPort(ComPort.COM1, Port.COM1)
         self.com2 = ReceiverPort(ComPort.COM2, Port.COM2)
-        self.ports = {ComPort.COM1: self.com1, ComPort.COM2: self.com2}
+        self.ports: dict[int, ReceiverPort] = {ComPort.COM1: self.com1, ComPort.COM2: self.com2}   # by port field
         for p in self.ports.values():
             p.line.buffer_bytes = line_buffer_bytes
         self._rx = self.com1.rx
@@ -531,6 +531,7 @@ class NovatelTwin(ByteTwin):
         last = self._last_solution
         if last is not None and last.gps_ms == gps_ms:
             return last
+        assert self.solver is not None, "solved only without a replay: then the twin was given truth"
         solution = self.solver.solve(gps_ms, gps_to_utc_ns(*divmod(gps_ms, WEEK_MS)))
         self._last_solution = solution
         return solution
@@ -568,11 +569,14 @@ class NovatelTwin(ByteTwin):
 
     # -- replay ----------------------------------------------------------------------
     def _begin_replay(self, now_s: float) -> None:
-        self.replay.begin(now_s, self._gps_ms(now_s))
-        if not self.replay.retime:              # the receiver lives in the recording's time
-            self.clock.anchor(now_s, self.replay.host_gps_ms(0))
+        replay = self.replay
+        assert replay is not None, "called for a twin that replays"
+        replay.begin(now_s, self._gps_ms(now_s))
+        if not replay.retime:                   # the receiver lives in the recording's time
+            self.clock.anchor(now_s, replay.host_gps_ms(0))
 
     def _replay_due(self, now_s: float) -> None:
+        assert self.replay is not None, "called for a twin that replays"
         for solution in self.replay.due(now_s):
             self._last_solution = solution
             due = [m for m, e in self.logs.items() if e.fires_at(solution.gps_ms, EPOCH_MS)]
@@ -712,7 +716,7 @@ class NovatelTwin(ByteTwin):
         if self._on_com1(cmd.port):
             if cmd.message not in self.logs:
                 raise Rejected(ResponseId.LOG_DOES_NOT_EXIST)
-            del self.logs[cmd.message]
+            del self.logs[MessageId(cmd.message)]     # (one of the logs': a MessageId)
         return None
 
     def _unlogall(self, cmd: Unlogall, now_s: float):
@@ -796,7 +800,7 @@ class NovatelTwin(ByteTwin):
 
     def _dynamics(self, cmd: DynamicsCommand, now_s: float):
         self._check(2, self._known(cmd.dynamics))
-        self.dynamics = cmd.dynamics
+        self.dynamics = Dynamics(cmd.dynamics)     # (read as a Dynamics already: the same member)
         return None
 
     def _sbascontrol(self, cmd: SbasControl, now_s: float):
@@ -896,10 +900,12 @@ class NovatelTwin(ByteTwin):
         body = inner[:-CRC_LENGTH] + crc.to_bytes(CRC_LENGTH, "little")
         return encode_frame(self._header(MessageId.RXCONFIG, gps_ms, sequence=sequence), body)
 
-    _HANDLERS = {Log: _log, Unlog: _unlog, Unlogall: _unlogall, Com: _com,
-                 DynamicsCommand: _dynamics, SbasControl: _sbascontrol, Reset: _reset,
-                 SaveConfig: _saveconfig, InterfaceModeCommand: _interfacemode, DgpsTimeout: _dgpstimeout,
-                 PsrDiffSource: _source, RtkSource: _source}
+    #: each command's handler: (twin, command, now_s) -> what to do after the response, or None
+    _HANDLERS: dict[type, Callable[..., Callable[[], None] | None]] = {
+        Log: _log, Unlog: _unlog, Unlogall: _unlogall, Com: _com,
+        DynamicsCommand: _dynamics, SbasControl: _sbascontrol, Reset: _reset,
+        SaveConfig: _saveconfig, InterfaceModeCommand: _interfacemode, DgpsTimeout: _dgpstimeout,
+        PsrDiffSource: _source, RtkSource: _source}
 
     def _reboot(self, now_s: float) -> None:
         """RESET: silent while booting, then the saved configuration (or the factory's),
@@ -920,6 +926,7 @@ class NovatelTwin(ByteTwin):
         self._next_epoch_ms = None
         self._last_solution = None
         if self._rover is not None:             # what it had of the corrections is gone
+            assert self.solver is not None, "a rover is made for the truth's solver"
             self._rover = None
             self.solver.rover = None
         if self.solver is not None:

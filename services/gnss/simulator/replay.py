@@ -127,6 +127,7 @@ class DriveReplay:
         self.index = 0
 
     def time_of(self, index: int) -> float:
+        assert self.start_s is not None, "asked only once begun"
         first = self.epochs[0].host_utc_ns
         return self.start_s + (self.epochs[index].host_utc_ns - first) / 1e9 / self.speed
 
@@ -151,6 +152,7 @@ class DriveReplay:
                 break
             first, last = self.epochs[0], self.epochs[-1]
             span_s = (last.host_utc_ns - first.host_utc_ns) / 1e9 + EPOCH_MS / 1000.0
+            assert self.start_s is not None, "finished: begun"
             self.start_s += span_s / self.speed
             self.shift_ms += last.solution.gps_ms - first.solution.gps_ms + EPOCH_MS
             self.index = 0

@@ -52,7 +52,7 @@ class Observables:
 class RtcmInput:
     """RTCM 3 bytes in, the messages the receiver uses out; counts what it skipped."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._framer = Rtcm3Framer()
         self.decoded: Counter[int] = Counter()    # by message number
         self.ignored: Counter[int] = Counter()    # frames it cannot use, by message number

@@ -146,6 +146,15 @@ class RtkMachine:
     says what epoch t_s reports. Deterministic for a seed and a sequence of calls.
     """
 
+    # the RTK filter's state, set by _reset_filter
+    _observations: int
+    _float_since: float | None
+    _credit_s: float
+    _fix_at: float | None
+    _fixed_since: float | None
+    _wrong: tuple[tuple[float, float, float], float] | None    # (offset ENU m, when it is noticed)
+    _warm: bool
+
     def __init__(self, engine: str = RT2, *, seed: int = 0, figures: RtkFigures = DEFAULT_FIGURES,
                  dgps_timeout_s: float = FACTORY_DGPS_TIMEOUT_S):
         self.engine = engine
@@ -244,11 +253,11 @@ class RtkMachine:
     def _reset_filter(self) -> None:
         """The RTK filter starts over: no base model, no float, no ambiguities."""
         self._observations = 0
-        self._float_since: float | None = None
+        self._float_since = None
         self._credit_s = 0.0
-        self._fix_at: float | None = None
-        self._fixed_since: float | None = None
-        self._wrong: tuple | None = None
+        self._fix_at = None
+        self._fixed_since = None
+        self._wrong = None
         self._warm = False
 
     def _time_to_fix(self, baseline_m: float, warm: bool) -> float:

@@ -84,6 +84,7 @@ def main(argv=None) -> int:
                   outage_interval_s=args.outage_interval_s, replay=replay,
                   replay_speed=args.replay_speed, replay_loop=args.replay_loop,
                   replay_retime=not args.replay_keep_time)
+    twin: NovatelTwin | NmeaTwin
     if args.kind == "novatel":
         twin = NovatelTwin(truth, model=args.model, firmware=args.firmware, **common)
     else:
@@ -91,7 +92,7 @@ def main(argv=None) -> int:
     endpoint = SerialEndpoint(twin, args.host, args.port, name=args.kind).start()
     endpoints = [endpoint]
     print(f"READY {endpoint.url}", flush=True)
-    if args.kind == "novatel" and args.com2_port >= 0:
+    if isinstance(twin, NovatelTwin) and args.com2_port >= 0:     # (kind novatel)
         com2 = SerialEndpoint(twin.port("COM2"), args.host, args.com2_port, name="novatel.com2").start()
         endpoints.append(com2)
         print(f"COM2 {com2.url}", flush=True)

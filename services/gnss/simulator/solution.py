@@ -52,7 +52,7 @@ class Solution:
     station_id: str = ""                # the differential base's ID (stn id)
     sats_l1_rtk: int = 0                # satellites above the RTK mask, L1 ...
     sats_l2_rtk: int = 0                # ... and L2
-    _geodetic: tuple | None = field(default=None, compare=False, repr=False)
+    _geodetic: tuple[float, float, float] | None = field(default=None, compare=False, repr=False)
 
     @property
     def has_fix(self) -> bool:
@@ -60,10 +60,12 @@ class Solution:
 
     def geodetic(self) -> tuple[float, float, float]:
         """(lat_deg, lon_deg, ellipsoidal height m)."""
-        if self._geodetic is None:
+        geodetic = self._geodetic
+        if geodetic is None:
             lat, lon, h = pymap3d.ecef2geodetic(*self.ecef_m)
-            object.__setattr__(self, "_geodetic", (float(lat), float(lon), float(h)))
-        return self._geodetic
+            geodetic = (float(lat), float(lon), float(h))
+            object.__setattr__(self, "_geodetic", geodetic)
+        return geodetic
 
     def enu_sigma(self) -> tuple[float, float, float]:
         """Position sigmas along E, N, U (from the ECEF ones when not given)."""
@@ -72,7 +74,8 @@ class Solution:
         lat, lon, _ = self.geodetic()
         r = _enu_axes(lat, lon)
         cov = r.T @ np.diag(np.square(self.ecef_sigma_m)) @ r
-        return tuple(float(v) for v in np.sqrt(np.diag(cov)))
+        e, n, u = np.sqrt(np.diag(cov))
+        return float(e), float(n), float(u)
 
     def enu_velocity(self) -> tuple[float, float, float]:
         lat, lon, _ = self.geodetic()
@@ -177,7 +180,7 @@ class TruthSolver:
     def _no_fix(self, gps_ms: int, sky) -> Solution:
         """INSUFFICIENT_OBS: the last fix held with its age growing, then X=100, Y=Z=0."""
         last = self._last_fix
-        age = None if last is None else (gps_ms - last.gps_ms) / 1000.0
+        age = math.inf if last is None else (gps_ms - last.gps_ms) / 1000.0
         insufficient = SolutionStatus.INSUFFICIENT_OBS
         if last is not None and age <= self.hold_limit_s:
             return Solution(

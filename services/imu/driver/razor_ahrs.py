@@ -32,6 +32,7 @@ import serial
 from viena.common import clock
 from viena.services.imu.driver.frames import Frame
 from viena.services.imu.driver.serial_imu import SerialImu
+from viena.services.imu.model.firmware_units import ACCEL_PER_G, GYRO_LSB_PER_DPS
 
 BAUDRATE = 57_600
 RATE_HZ = 50.0
@@ -41,11 +42,6 @@ CALIBRATED_BINARY = b"#oscb"
 CALIBRATED_TEXT = b"#osct"
 ERRORS_OFF = b"#oe0"
 SENSORS = struct.Struct("<9f")
-ACCEL_PER_G = 256.0              # the firmware's GRAVITY constant
-GYRO_LSB_PER_DPS = 14.375        # ITG-3200 sensitivity
-#: magnetometer units per HMC5843 count with the firmware's default limits (MAGN_*_MIN/MAX
-#: = -600/600 give MAGN_*_SCALE = 100 / 600)
-DEFAULT_MAGN_SCALE = 100.0 / 600.0
 #: binary frames held while waiting for the line's pause (160 ms at 50 Hz)
 MAX_HELD = 8
 #: What the board can physically send, in the firmware's units (see frames.LIMITS): the

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from viena.common.errors import ConfigError
-from viena.services.imu.driver.razor_ahrs import ACCEL_PER_G, DEFAULT_MAGN_SCALE
+from viena.services.imu.model.firmware_units import ACCEL_PER_G, DEFAULT_MAGN_SCALE
 from viena.services.imu.model.fitting import AccelFit, GyroBiasFit, MagFit, ellipse_c_inv
 from viena.services.imu.model.mount import Mount
 

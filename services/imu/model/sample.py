@@ -6,13 +6,15 @@ firmware sent, unchanged, so the unit can be re-calibrated from any recording.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 from viena.common.display import fmt_num, fmt_vec, norm
 from viena.common.schema import F, Schema
-from viena.services.imu.driver import Reading
 from viena.services.imu.model.calibration import SampleCalibrator
 from viena.services.imu.model.glitch import MagGlitchFilter
+
+if TYPE_CHECKING:  # the driver's frames, read here without loading the driver (and serial)
+    from viena.services.imu.driver import Reading
 
 SAMPLE = Schema("viena.imu.sample/1", {
     "t": F.time,                       # acquisition time, int ns UTC (estimated, see driver.timing)

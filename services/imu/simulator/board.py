@@ -22,7 +22,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from viena.services.imu.driver.razor_ahrs import GYRO_LSB_PER_DPS
 from viena.services.imu.model.calibration import (
     HMC5843_TESLA_PER_COUNT,
     STANDARD_GRAVITY,
@@ -31,6 +30,7 @@ from viena.services.imu.model.calibration import (
     noise_figure,
     seed_calibration,
 )
+from viena.services.imu.model.firmware_units import GYRO_LSB_PER_DPS
 from viena.services.imu.model.imu_errors import (
     NO_ERRORS,
     RRW_CROSSING_S,

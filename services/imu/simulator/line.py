@@ -20,7 +20,8 @@ from functools import cache
 import numpy as np
 
 from viena.services.imu.driver.frames import encode_frame
-from viena.services.imu.driver.razor_ahrs import DEFAULT_MAGN_SCALE, SENSORS, from_board
+from viena.services.imu.driver.razor_ahrs import SENSORS, from_board
+from viena.services.imu.model.firmware_units import DEFAULT_MAGN_SCALE
 from viena.services.imu.recordings import PARKED, load_parked
 
 KINDS = ("truncate", "delete", "insert", "flip")

@@ -13,7 +13,8 @@ from collections.abc import Callable
 import numpy as np
 
 from viena.common.twin.serial_port import ByteTwin
-from viena.services.imu.driver.razor_ahrs import DEFAULT_MAGN_SCALE, from_board, sync_reply
+from viena.services.imu.driver.razor_ahrs import from_board, sync_reply
+from viena.services.imu.model.firmware_units import DEFAULT_MAGN_SCALE
 from viena.services.imu.simulator.board import RazorBoard
 
 RATE_HZ = 50.0

@@ -73,7 +73,7 @@ class Mountpoint:
     vrs: bool = False               # STR NMEA 1: nothing until a GGA, then a base at the rover
     latency_s: float = 0.2          # from the epoch to the base's frames reaching the caster
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         self.messages = schedule.check(self.messages)
         self._frames = schedule.Frames(self.base)
         self._bitrate: dict[tuple, int] = {}

@@ -137,20 +137,22 @@ class Pilot:
         why = estimate_problem(self.estimate, now_ns, self.settings.safety)
         if why is None and self.precision.stops:
             why = self.precision.reason
-        if why is None and self.where is None:
+        est, where, path = self.estimate, self.where, self._path
+        if why is None and where is None:
             why = "lost the route"
         if why is None:
-            if self.where.s_m >= self._path.length_m:
+            assert where is not None and path is not None, "a place on the route is a place on its path"
+            if where.s_m >= path.length_m:
                 self.mode, self.reason, self._last_wheel_rad = "finished", "route end", None
                 return None
-            why = tracking_problem(self.where, self.settings.safety)
+            why = tracking_problem(where, self.settings.safety)
         if why is not None:
             self.stop(why)
             return None
-        est = self.estimate
+        assert est is not None and where is not None and path is not None, "no problem: an estimate on the path"
         tracker = TRACKERS[self.settings.tracking.controller]
         speed = max(est.speed_mps, self.steering_speed_mps or 0.0)
-        self.command = tracker(self._path, self.where, est.x_m, est.y_m, est.yaw_rad,
+        self.command = tracker(path, where, est.x_m, est.y_m, est.yaw_rad,
                                est.speed_mps, self.settings.tracking, self._lookahead_floor_m(speed))
         wheel = self._inside_envelope(self.command.wheel_rad, speed, now_ns)
         self._last_wheel_rad, self._last_ns = wheel, now_ns
@@ -159,6 +161,7 @@ class Pilot:
 
     def _planning_limits(self, speed_mps: float, now_ns: int) -> Limits:
         env = self.envelope
+        assert env is not None, "the planning limits are the envelope's: asked only when there is one"
         engaging = self._armed_ns is not None and (now_ns - self._armed_ns) * 1e-9 < env.engage_s
         return limits(speed_mps, env.scaled(PLAN_SHARE), PLAN_SHARE * self._slew_deg_s, engaging)
 
@@ -198,14 +201,16 @@ class Pilot:
             return self.precision.reason
         self.where = None                       # find the car afresh, from the route's start
         self._locate(now_ns)
-        safety, length = self.settings.safety, self._path.length_m
-        why = start_problem(self.where, length, self.estimate.yaw_rad, safety)
-        if self.where.s_m > length / 2:
+        est, where, path = self.estimate, self.where, self._path
+        assert est is not None and where is not None and path is not None, \
+            "an estimate with no problem has a position: _locate put it on the route's path"
+        safety, length = self.settings.safety, path.length_m
+        why = start_problem(where, length, est.yaw_rad, safety)
+        if where.s_m > length / 2:
             # A route that ends where it starts (a loop) has a car just behind its start
             # beside its last leg too, on a bend nearer: a drive starts at the start, where
             # the car may start.
-            est = self.estimate
-            at_start = self._path.project(est.x_m, est.y_m, near_s_m=0.0)
+            at_start = path.project(est.x_m, est.y_m, near_s_m=0.0)
             if (math.hypot(est.x_m - at_start.x_m, est.y_m - at_start.y_m) <= safety.max_start_offset_m
                     and start_problem(at_start, length, est.yaw_rad, safety) is None):
                 self.where, why = at_start, None

@@ -353,7 +353,7 @@ class Recording:
 
     def _where(self, offset: int) -> str:
         where = f"byte {offset} of {self.size}"
-        if self.first_log_time is not None:
+        if self.first_log_time is not None and self.last_log_time is not None:   # set together in _seen
             where += f", {(self.last_log_time - self.first_log_time) / 1e9:.3f} s into the recording"
         return where
 

@@ -47,7 +47,7 @@ def with_table(text: str, cls: type[Service]) -> str:
     head, begin, rest = text.partition(BEGIN)
     _, end, tail = rest.partition(END)
     if not begin or not end:
-        raise ValueError("no settings section: put the two markers of viena/settings.py where it goes")
+        raise ValueError("no settings section: put the two markers of viena/settings_cli.py where it goes")
     return f"{head}{BEGIN}\n\n{markdown(cls.settings_class)}\n{END}{tail}"
 
 

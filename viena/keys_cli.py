@@ -208,7 +208,7 @@ def _zenoh_config(store: KeyStore, args) -> int:
 
 def _running_endpoint() -> str:
     """The running profile's TLS endpoint, so the printed config reaches the car as it is."""
-    from viena.runstate import read_environment, running_profiles
+    from viena.common.runstate import read_environment, running_profiles
 
     for profile in running_profiles():
         env = read_environment(profile) or {}

@@ -12,7 +12,7 @@ import json
 import os
 from pathlib import Path
 
-from viena.paths import compose_dir
+from viena.common.paths import compose_dir
 
 
 def profiles() -> list[str]:

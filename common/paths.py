@@ -4,13 +4,16 @@ They live at the top of the repository (compose/, data/) and reach the package t
 the links viena/profiles and viena/data, which a wheel turns into plain folders; so the
 same paths work from a checkout, an editable install and an installed wheel, from any
 working directory. VIENA_COMPOSE points `viena up` at other profiles (tests use it).
+The package's folder is asked of the import system: common/ resolves to the repository's
+top in a checkout, where no profiles/ link is.
 """
 from __future__ import annotations
 
 import os
+from importlib.resources import files
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parent
+PACKAGE = Path(str(files("viena")))
 
 
 def compose_dir() -> Path:
@@ -20,4 +23,3 @@ def compose_dir() -> Path:
 
 def router_config() -> Path:
     return compose_dir() / "zenoh" / "router.json5"
-
