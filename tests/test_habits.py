@@ -1,5 +1,6 @@
 """The habits of a well-kept project, checked with the suite: `scripts/lint` (ruff over the
-repository, mypy over viena.common and the drivers, rules in pyproject.toml) finds nothing.
+repository, mypy over viena.common, the drivers, the estimator, the pilot, the GNSS twins and
+viena-ntrip, rules in pyproject.toml) finds nothing.
 CI runs the same script before the tests, and .pre-commit-config.yaml before each commit."""
 
 import os

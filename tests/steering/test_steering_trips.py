@@ -61,3 +61,11 @@ def test_a_model_module_loads_no_io_stack(module):
             "print([m for m in ('serial', 'can', 'canopen', 'pynmea2', 'zenoh') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]", (module, out)
+
+
+def test_the_cores_life_guard_code_is_the_drivers():
+    """The core names the drive's life-guard EMCY without importing the driver (a model loads
+    no I/O): the two must stay the same number, or a life-guard stop reads as a fault."""
+    from viena.services.steering.driver.emcy import LIFE_GUARD_ERROR
+    from viena.services.steering.model import core
+    assert core.LIFE_GUARD_ERROR == LIFE_GUARD_ERROR == 0x8130
