@@ -391,20 +391,17 @@ def check_ntrip(settings, car: str, position: tuple[float, float] | None = None,
     file, the caster answering with its source table, the mountpoint in it. `position`
     (lat, lon): the car's, for the distances to the bases."""
     from viena.services.ntrip.driver import (
-        CasterAddress,
         CredentialsError,
         LinkError,
         fetch_sourcetable,
         read_credentials,
     )
-    from viena.services.ntrip.driver.credentials import default_path
     from viena.services.ntrip.driver.sourcetable import by_distance, mountpoints
 
-    address = CasterAddress(settings.caster, settings.port, settings.mountpoint, settings.ntrip_version, settings.tls,
-                            str(Path(settings.ca_file).expanduser()) if settings.ca_file else "")
+    address = settings.address()
     checks, credentials = [], None
-    if settings.credentials.lower() != "none":
-        path = Path(settings.credentials).expanduser() if settings.credentials else default_path(car)
+    path = settings.credentials_path(car)
+    if path is not None:
         try:
             credentials = read_credentials(path)
             checks.append(Check(OK, f"ntrip credentials {path}", "one login, readable by its owner only"))

@@ -81,6 +81,17 @@ class NtripSettings:
     retry_max_s: float = setting(60.0, "longest wait between attempts after failures (never under 10 s apart)")
     lost_after_s: float = setting(30.0, "not streaming for this long: health says the corrections are lost")
 
+    def address(self) -> CasterAddress:
+        """Where the caster is and what to ask it (the service and `viena doctor` alike)."""
+        return CasterAddress(self.caster, self.port, self.mountpoint, self.ntrip_version, self.tls,
+                             str(Path(self.ca_file).expanduser()) if self.ca_file else "")
+
+    def credentials_path(self, car: str) -> Path | None:
+        """The login file these settings name (None: the caster wants no login)."""
+        if self.credentials.lower() == "none":
+            return None
+        return Path(self.credentials).expanduser() if self.credentials else default_path(car)
+
 
 class NtripService(Service):
     """The NTRIP client: corrections in, viena.gnss.corrections/1 out."""
@@ -108,8 +119,7 @@ class NtripService(Service):
         if s.ca_file and not Path(s.ca_file).expanduser().is_file():
             raise ConfigError(f"{where}: ca_file {s.ca_file} is not a file")
         self.credentials_file = self._credentials_file()
-        self.address = CasterAddress(s.caster, s.port, s.mountpoint, s.ntrip_version, s.tls,
-                                     str(Path(s.ca_file).expanduser()) if s.ca_file else "")
+        self.address = s.address()
         self._seq = itertools.count(1)
         self._state_seq = itertools.count(1)
         self._changed = clock.Event()
@@ -123,10 +133,9 @@ class NtripService(Service):
         """The login file, checked now so that a bad one stops the start in one line. One
         that is not there yet is waited for (each attempt reads it again, and says so in the
         state): the sim's caster twin writes it as it starts, beside this program."""
-        given = self.settings.credentials
-        if given.lower() == "none":
+        path = self.settings.credentials_path(self.keys.car)
+        if path is None:
             return ""
-        path = Path(given).expanduser() if given else default_path(self.keys.car)
         if not path.exists():
             self.log.warning("credentials file %s is not there (yet): each attempt looks again", path)
             return str(path)
