@@ -308,8 +308,8 @@ def bench_live(seconds: float) -> list[tuple]:
 
     from benchmarks.harness import cpu_seconds, processes, start_router
     from viena.common.config import load_zenoh_config
-    from viena.services.gnss.model.fix import FIX
-    from viena.services.imu.model.sample import SAMPLE
+    from viena.common.samples.fix import FIX
+    from viena.common.samples.imu import SAMPLE
 
     drive = Drive(duration_s=seconds + 15.0, seed=6)
     samples = list(DriveSamples(drive))

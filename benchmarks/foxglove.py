@@ -31,9 +31,9 @@ import msgpack
 
 from benchmarks.harness import cpu_share, free_port, percentile, processes, start_router
 from viena.common.config import load_zenoh_config
-from viena.common.health import HEALTH
 from viena.common.paths import compose_dir
 from viena.common.recording import ReceiveClock, Recording, RecordingWriter
+from viena.common.samples.health import HEALTH
 
 CAR = "benchfox"
 PROBE_KEY = f"viena/{CAR}/bench/health"

@@ -23,6 +23,7 @@ import numpy as np
 
 from benchmarks.harness import cpu_share, percentile, processes, start_router
 from viena.common.config import load_zenoh_config
+from viena.common.samples.fix import FIX
 from viena.common.twin.serial_port import SerialEndpoint, TwinWrapper
 from viena.services.gnss.driver.novatel import (
     BestXyz,
@@ -34,7 +35,6 @@ from viena.services.gnss.driver.novatel import (
     encode_log,
 )
 from viena.services.gnss.fixes import fix_from_bestxyz
-from viena.services.gnss.model.fix import FIX
 from viena.services.gnss.simulator import NovatelTwin
 from viena.services.gnss.simulator.serve import parked_truth
 

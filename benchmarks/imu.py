@@ -24,10 +24,11 @@ import time
 
 import numpy as np
 
+from viena.common.samples.imu import SAMPLE
 from viena.services.imu.driver import FRAME_SIZE, FrameDecoder, Razor, Reading, encode_frame
 from viena.services.imu.driver.frames import decode_frame
 from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
-from viena.services.imu.model.sample import SAMPLE, SampleBuilder
+from viena.services.imu.model.sample_builder import SampleBuilder
 
 
 def _frames(n: int) -> bytes:

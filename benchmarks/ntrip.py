@@ -21,8 +21,8 @@ from pathlib import Path
 
 from benchmarks.harness import cpu_share, percentile, processes, start_router
 from viena.common.config import load_zenoh_config
+from viena.common.samples.corrections import CORRECTIONS
 from viena.services.ntrip.driver.rtcm3 import Rtcm3Framer
-from viena.services.ntrip.model.corrections import CORRECTIONS
 from viena.services.ntrip.simulator.caster import CasterTwin, Mountpoint
 
 ORIGIN = (38.7369, -9.1427, 100.0)

@@ -30,12 +30,12 @@ import numpy as np
 
 from viena.common import clock
 from viena.common.rotation import euler_from_quat
+from viena.common.samples.pilot import STATE
 from viena.services.pilot.model.estimate import Estimate
 from viena.services.pilot.model.path import Path
 from viena.services.pilot.model.pilot import Pilot, PilotSettings
 from viena.services.pilot.model.route import Route
 from viena.services.pilot.model.sim_loop import loop_route, loop_route_from
-from viena.services.pilot.model.state import STATE
 from viena.services.sim.model.car import CarParams, SimCar
 from viena.services.sim.model.truth import IST_ORIGIN
 from viena.services.steering.model.requests import parse_setpoint
@@ -170,8 +170,8 @@ class LiveLoop:
         import threading
 
         from viena.common.keys import Keys
-        from viena.services.estimator.state import STATE as ESTIMATE
-        from viena.services.sim.model.truth import TRUTH
+        from viena.common.samples.estimator import STATE as ESTIMATE
+        from viena.common.samples.truth import TRUTH
 
         self.session, self.keys = session, Keys(car)
         self._truth_schema, self._pilot_schema, self._estimate_reader = TRUTH, STATE, ESTIMATE.reader("t", "enu_m")
@@ -393,7 +393,7 @@ def live(grade: str, cep_m: float | None, speed_mps: float) -> None:
     from benchmarks.security import sim_car
     from benchmarks.steering import BusWatch
     from viena.common.config import load_zenoh_config
-    from viena.common.health import HEALTH
+    from viena.common.samples.health import HEALTH
 
     for name in ("VIENA_SIM_SPEED_MIN_MPS", "VIENA_SIM_SPEED_MAX_MPS"):      # compose/sim.toml [sim.car]
         os.environ[name] = str(speed_mps)

@@ -41,9 +41,9 @@ class Watch:
     state and the sim's health."""
 
     def __init__(self, session, car: str = "elettra"):
-        from viena.common.health import HEALTH
+        from viena.common.samples.fix import solution_kind
+        from viena.common.samples.health import HEALTH
         from viena.common.schema import unpack
-        from viena.services.gnss.model.fix import solution_kind
 
         self._unpack, self._kind, self._health = unpack, solution_kind, HEALTH
         self.lock = threading.Lock()

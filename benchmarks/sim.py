@@ -11,8 +11,9 @@ import time
 
 from benchmarks.harness import cpu_share, processes, start_router
 from viena.common.config import load_zenoh_config
+from viena.common.samples.truth import TRUTH
 from viena.services.sim.model.car import SimCar
-from viena.services.sim.model.truth import TRUTH, truth_sample
+from viena.services.sim.model.truth import truth_sample
 
 
 def codec_us(n: int = 20000) -> float:

@@ -214,11 +214,11 @@ class TwinSensors:
         from viena.services.gnss.driver.novatel.logs import LogMessage
         from viena.services.gnss.fixes import fix_from_bestxyz
         from viena.services.gnss.simulator.errors import GnssErrorModel, SkyModel
-        from viena.services.gnss.simulator.novatel_twin import bestxyz_of
+        from viena.services.gnss.simulator.novatel_logs import bestxyz_of
         from viena.services.gnss.simulator.solution import TruthSolver
         from viena.services.imu.driver import Frame, Reading
         from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
-        from viena.services.imu.model.sample import SampleBuilder
+        from viena.services.imu.model.sample_builder import SampleBuilder
         from viena.services.imu.simulator import CAR_RAZOR_ERRORS, NO_ERRORS, RazorBoard
 
         self.drive, self.rng = drive, rng

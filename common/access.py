@@ -28,7 +28,24 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-STEERING_COMMANDS = ("steering/arm", "steering/setpoint", "steering/calibration", "steering/estop")
+from viena.common.keys import Keys
+from viena.common.samples import topics as T
+
+#: keys are the table's (common/samples/topics.py); `{name}` stands for the identity's name
+STEERING_COMMANDS = tuple(t.key() for t in T.STEERING_COMMANDS)
+STEERING_INPUTS = (T.STEERING_SETPOINT.key(), T.STEERING_ESTOP.key())
+ESTOP = T.STEERING_ESTOP.key()
+PILOT_COMMANDS = (T.PILOT_ROUTE.key(), T.PILOT_CMD.key())
+ALIVE_ALL = T.ALIVE.key(service="**", unit=None)
+
+
+def _below(*chunks: str) -> str:
+    """Every key under a service's (or a unit's) own chunks: its samples and its health."""
+    return "/".join([*chunks, "**"])
+
+
+def _token(service: str, unit: str | None = None) -> tuple[str, ...]:
+    return (T.ALIVE.key(service=service, unit=unit),)
 
 
 @dataclass(frozen=True)
@@ -44,41 +61,43 @@ class Role:
 
 
 def _device(kind: str, summary: str = "publishes on its own keys only", subscribe: tuple[str, ...] = ()) -> Role:
-    return Role(f"the {kind} service of one unit: {summary}", publish=(f"{kind}/{{name}}/**",),
-                subscribe=subscribe, token=(f"alive/{kind}/{{name}}",))
+    return Role(f"the {kind} service of one unit: {summary}", publish=(_below(kind, "{name}"),),
+                subscribe=subscribe, token=_token(kind, "{name}"))
 
 
 ROLES: dict[str, Role] = {
     "gnss": _device("gnss", "publishes on its own keys only; reads the corrections for its receiver",
-                    subscribe=("gnss/corrections",)),
+                    subscribe=(T.GNSS_CORRECTIONS.key(),)),
     "imu": _device("imu"),
     "ntrip": Role("viena-ntrip: the corrections from an NTRIP caster; reads the fixes for the GGA a "
                   "caster may ask for",
-                  publish=("gnss/corrections", "ntrip/**"), subscribe=("gnss/*/fix",), token=("alive/ntrip",)),
+                  publish=(T.GNSS_CORRECTIONS.key(), _below("ntrip")), subscribe=(T.GNSS_FIX.key(),),
+                  token=_token("ntrip")),
     "steering": Role("the steering service: its state and health; answers the steering commands; reads "
                      "the car's speed from the estimator and the receivers",
-                     publish=("steering/state", "steering/health"), serve=STEERING_COMMANDS,
-                     subscribe=("estimator/state", "gnss/*/fix"),
-                     receive=("steering/setpoint", "steering/estop"), token=("alive/steering",)),
+                     publish=(T.STEERING_STATE.key(), T.HEALTH.key(service="steering", unit=None)),
+                     serve=STEERING_COMMANDS, subscribe=(T.ESTIMATOR_STATE.key(), T.GNSS_FIX.key()),
+                     receive=STEERING_INPUTS, token=_token("steering")),
     "estimator": Role("the estimator: reads the devices, publishes the car's state",
-                      publish=("estimator/**",),
-                      subscribe=("gnss/*/fix", "imu/*/sample"),
-                      token=("alive/estimator",)),
+                      publish=(_below("estimator"),),
+                      subscribe=(T.GNSS_FIX.key(), T.IMU_SAMPLE.key()),
+                      token=_token("estimator")),
     "sim": Role("the simulated car: publishes its ground truth; its simulated person reads the "
                 "steering's state (to sweep the wheel when asked)",
-                publish=("sim/**",), subscribe=("steering/state",), token=("alive/sim",)),
+                publish=(_below("sim"),), subscribe=(T.STEERING_STATE.key(),), token=_token("sim")),
     "autopilot": Role("viena-pilot: follows a route, steering with its own lease",
-                      publish=("pilot/state", "pilot/path", "pilot/health", "steering/setpoint", "steering/estop"),
-                      subscribe=("estimator/state", "steering/state", "steering/estop"),
-                      serve=("pilot/route", "pilot/cmd"), receive=("pilot/route", "pilot/cmd"),
-                      command=("steering/arm", "steering/setpoint", "steering/estop"), token=("alive/pilot",)),
+                      publish=(T.PILOT_STATE.key(), T.PILOT_PATH.key(), T.HEALTH.key(service="pilot", unit=None),
+                               *STEERING_INPUTS),
+                      subscribe=(T.ESTIMATOR_STATE.key(), T.STEERING_STATE.key(), ESTOP),
+                      serve=PILOT_COMMANDS, receive=PILOT_COMMANDS,
+                      command=(T.STEERING_ARM.key(), *STEERING_INPUTS), token=_token("pilot")),
     "pilot": Role("a person or program allowed to drive: arms, steers, calibrates, stops; sends "
                   "the autopilot its route and start/stop",
-                  subscribe=("**",), command=(*STEERING_COMMANDS, "pilot/route", "pilot/cmd"),
-                  publish=("steering/setpoint", "steering/estop", "pilot/route", "pilot/cmd"),
-                  token=("alive/pilot/{name}",), liveliness=True),
+                  subscribe=("**",), command=(*STEERING_COMMANDS, *PILOT_COMMANDS),
+                  publish=(*STEERING_INPUTS, *PILOT_COMMANDS),
+                  token=_token("pilot", "{name}"), liveliness=True),
     "observer": Role("anyone else on the car: watches everything and may stop the car",
-                     subscribe=("**",), publish=("steering/estop",), liveliness=True),
+                     subscribe=("**",), publish=(ESTOP,), liveliness=True),
 }
 
 
@@ -117,8 +136,8 @@ class _Policy:
         self.allow(ids, f"{r}/token-replies", ["reply"], "egress", role.token, name)
         if role.liveliness:
             self.allow(ids, f"{r}/liveliness", ["declare_liveliness_subscriber", "liveliness_query"],
-                       "ingress", ("alive/**",), name)
-            self.allow(ids, f"{r}/liveliness-replies", ["reply"], "egress", ("alive/**",), name)
+                       "ingress", (ALIVE_ALL,), name)
+            self.allow(ids, f"{r}/liveliness-replies", ["reply"], "egress", (ALIVE_ALL,), name)
         ids.append("discovery")
         self.subjects.append({"id": name, "cert_common_names": [common_name]})
         self.policies.append({"id": name, "rules": ids, "subjects": [name]})
@@ -128,11 +147,11 @@ def access_control(car: str, identities: list[tuple[str, str, str]]) -> dict:
     """zenoh's `access_control` block for one car: default deny, then each (name, role,
     common name) allowed what its role says, to the certificate with that common name only.
     Unknown roles are skipped (they get nothing)."""
-    policy = _Policy(f"viena/{car}")
+    policy = _Policy(Keys(car).prefix)
     policy.rules.append({
         "id": "discovery", "permission": "allow", "flows": ["egress"],
         "messages": ["declare_subscriber", "declare_queryable", "liveliness_token"],
-        "key_exprs": [f"viena/{car}/**"]})
+        "key_exprs": [Keys(car).all]})
     for name, role, common_name in identities:
         if role in ROLES:
             policy.add(name, ROLES[role], common_name)

@@ -36,10 +36,16 @@ from mcap.writer import CompressionType, Writer
 
 from viena.common import clock
 from viena.common.errors import InputError, SampleError
+from viena.common.samples.topics import topic_of_key
 from viena.common.schema import MSGPACK, unpack
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ENCODING_KEY = "zenoh_encoding"
+#: channel metadata from the table of topics (common/samples/topics.py): the topic's name,
+#: and "true" when its last sample holds for the whole drive (a file split off a drive
+#: repeats it at its start)
+TOPIC_KEY = "viena_topic"
+LATCHED_KEY = "viena_latched"
 PROFILE = "viena"
 METADATA_NAME = "viena.recording"
 #: small chunks: a recorder that dies loses at most this much (about 2 s of the whole car)
@@ -80,6 +86,15 @@ def sample_time(data: bytes) -> int | None:
     except Exception:       # garbage is the recording's business, not the recorder's
         return None
     return None
+
+
+def topic_metadata(key: str) -> dict[str, str]:
+    """What the table of topics says of a recorded key (viena/<car>/...): {} for a key it
+    does not know."""
+    found = topic_of_key(key)
+    if found is None:
+        return {}
+    return {TOPIC_KEY: found[0].name, LATCHED_KEY: "true" if found[0].latched else "false"}
 
 
 def decode_value(data: bytes, encoding: str) -> Any:
@@ -176,7 +191,7 @@ class RecordingWriter:
             schema_id = self._schemas.get(name) or self._writer.register_schema(name, "", b"")
             self._schemas[name] = schema_id
         return self._writer.register_channel(key, message_encoding(encoding), schema_id,
-                                             {ENCODING_KEY: encoding})
+                                             {ENCODING_KEY: encoding, **topic_metadata(key)})
 
     def add_metadata(self, metadata: dict[str, str]) -> None:
         self._writer.add_metadata(METADATA_NAME, {k: str(v) for k, v in metadata.items()})

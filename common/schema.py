@@ -16,6 +16,7 @@ from __future__ import annotations
 import builtins
 import math
 import threading
+import weakref
 from collections.abc import Callable, Hashable
 from typing import Any
 
@@ -27,6 +28,9 @@ MSGPACK = "application/msgpack"
 #: Bounds on what we unpack: a sample is small; a hostile payload must not eat memory.
 _MAX_BYTES = 1 << 20
 SCHEMAS: dict[str, Schema] = {}
+#: every Reader made, by its schema's name: tests/test_schema_history.py has each read every
+#: stored version of its schema (weak: a Reader made for one call is not kept)
+READERS: dict[str, weakref.WeakSet[Reader]] = {}
 
 Check = Callable[[Any], Any]
 
@@ -58,9 +62,9 @@ def _fast(expr: str, items: str | None = None) -> Callable[[Check], Check]:
     function for the common case (see _Fields). `items`: a test for a list `v` of such
     values, cheaper than testing each (F.list uses it)."""
     def mark(fn: Check) -> Check:
-        fn.fast = expr  # type: ignore[attr-defined]
+        fn.fast = expr  # type: ignore[attr-defined]  # a mark on the function object, read by getattr
         if items is not None:
-            fn.fast_items = items  # type: ignore[attr-defined]
+            fn.fast_items = items  # type: ignore[attr-defined]  # as above
         return fn
     return mark
 
@@ -81,7 +85,7 @@ def _made(kind: str, **values: Any) -> Callable[[Check], Check]:
     tools that describe a schema in other terms (common/json_schema.py) read it here
     rather than guess it from the function."""
     def mark(fn: Check) -> Check:
-        fn.made = (kind, values)  # type: ignore[attr-defined]
+        fn.made = (kind, values)  # type: ignore[attr-defined]  # a mark on the function, read by getattr
         return fn
     return mark
 
@@ -185,7 +189,7 @@ class F:
         @_made("optional", inner=inner)
         def check(v):
             return None if v is None else inner(v)
-        check.optional = True  # type: ignore[attr-defined]
+        check.optional = True  # type: ignore[attr-defined]  # a mark on the function, read by getattr
         if hasattr(inner, "fast"):
             return _fast(f"v is None or ({inner.fast})")(check)
         return check
@@ -331,6 +335,7 @@ class Reader:
             if getattr(check, "optional", False):
                 self.defaults.setdefault(name, None)
         self._fast = self._compile()
+        READERS.setdefault(schema.name, weakref.WeakSet()).add(self)
 
     def _compile(self):
         """One function: the values when each is what its check keeps, else None (a field

@@ -29,12 +29,20 @@ from typing import Any
 
 from viena.common import clock
 from viena.common.errors import ConfigError, SampleError
-from viena.common.health import HEALTH, Health
+from viena.common.health import Health
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
 from viena.common.payload import reply_bytes
-from viena.common.schema import Schema
-from viena.common.session import add_common_arguments, car_name, load_settings_file, open_session, zenoh_config
+from viena.common.samples import topics
+from viena.common.samples.topics import Topic
+from viena.common.session import (
+    add_common_arguments,
+    car_name,
+    load_settings_file,
+    open_session,
+    zenoh_config,
+    zenoh_options,
+)
 from viena.common.settings import add_flags, given_flags, load, specs
 from viena.common.signals import call_on_signals
 
@@ -61,16 +69,18 @@ def reply_to(query, answer: dict, encoding: str | None, data: bytes, key: str | 
     query.reply(key or query.key_expr, payload, encoding=zenoh.Encoding(reply_encoding))
 
 class Publisher:
-    """Publishes samples of one schema on one key; a sample that fails its check is
-    logged and counted, never sent."""
+    """Publishes samples of one topic's schema on one of its keys; a sample that fails its
+    check is logged and counted, never sent."""
 
-    def __init__(self, service: Service, key: str, schema: Schema, **options):
+    def __init__(self, owner: Service, topic: Topic, /, **chunks: str | None):
         import zenoh
 
-        self.key, self.schema = key, schema
-        self._service = service
-        self._pub = service.session.declare_publisher(
-            key, encoding=zenoh.Encoding(schema.encoding), **options)
+        if topic.schema is None:
+            raise ValueError(f"{topic.name} carries no schema: it is a command, not a stream")
+        self.key, self.schema = owner.keys.of(topic, **chunks), topic.schema
+        self._service = owner
+        self._pub = owner.session.declare_publisher(
+            self.key, encoding=zenoh.Encoding(self.schema.encoding), **zenoh_options(topic))
 
     def put(self, sample: dict) -> bool:
         try:
@@ -129,8 +139,10 @@ class Service:
     def stop(self) -> None:
         """Stop threads and close the device. Must return well within 2 s."""
 
-    def publisher(self, key: str, schema: Schema, **options) -> Publisher:
-        pub = Publisher(self, key, schema, **options)
+    def publisher(self, topic: Topic, /, **chunks: str | None) -> Publisher:
+        """A publisher on `topic`'s key (its placeholders from `chunks`), with its schema and
+        its quality of service, from the table of topics."""
+        pub = Publisher(self, topic, **chunks)
         self._declared.append(pub)
         return pub
 
@@ -169,7 +181,7 @@ class Service:
                       self.session.zid())
         try:
             self._token = self.session.liveliness().declare_token(self.keys.alive(self.name, self.unit))
-            health_pub = self.publisher(self.keys.health(self.name, self.unit), HEALTH)
+            health_pub = self.publisher(topics.HEALTH, service=self.name, unit=self.unit)
             self.start()
             while not self.stopping.wait(HEALTH_PERIOD_S):
                 health_pub.put(self.health.snapshot())

@@ -278,3 +278,12 @@ def open_session(conf, stop: threading.Event | None = None, what: str = "router"
         if said:
             log.info("connected")
         return session
+
+
+def zenoh_options(topic) -> dict:
+    """A publisher's (or a put's) quality of service for `topic` (common/samples/topics.py):
+    zenoh's congestion control. Reliability is zenoh's default, reliable, on every topic."""
+    import zenoh
+
+    block = topic.congestion == "block"
+    return {"congestion_control": zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP}

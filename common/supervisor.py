@@ -21,7 +21,8 @@ from abc import ABC, abstractmethod
 from typing import Any
 
 from viena.common import clock
-from viena.common.health import (
+from viena.common.health import Health
+from viena.common.samples.health import (
     CONNECT_FAILURES,
     CONNECTED,
     DEVICE_ERRORS,
@@ -31,7 +32,6 @@ from viena.common.health import (
     PORT_FAILURES,
     RECONNECTS,
     SILENCES,
-    Health,
 )
 from viena.common.silence import SilenceWatch
 

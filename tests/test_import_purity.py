@@ -15,9 +15,8 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 IO_MODULES = ("serial", "can", "canopen", "pynmea2", "zenoh")
 #: schema modules outside a model/ room, and the estimator's readers and output
-EXPLICIT = ("viena.common.schema", "viena.common.health", "viena.common.json_schema",
-            "viena.services.estimator.state", "viena.services.estimator.inputs",
-            "viena.services.estimator.output")
+EXPLICIT = ("viena.common.schema", "viena.common.health", "viena.common.json_schema", "viena.common.keys",
+            "viena.services.estimator.inputs", "viena.services.estimator.output")
 #: a module that declares a schema: `NAME = Schema("viena.<...>/<version>", ...)`
 DECLARES_SCHEMA = re.compile(r'^\w+ = Schema\("viena\.', re.M)
 
@@ -28,9 +27,10 @@ def module_name(path: Path) -> str:
 
 
 def contract_modules() -> list[str]:
-    """Every model module (globbed, so new ones are covered), every module under common/ and
-    services/ that declares a schema, and the explicit list."""
+    """Every contract (common/samples/) and model module (globbed, so new ones are covered),
+    every module under common/ and services/ that declares a schema, and the explicit list."""
     found = {module_name(p) for p in REPO.glob("services/*/model/*.py")}
+    found |= {module_name(p) for p in REPO.glob("common/samples/*.py")}
     found |= {module_name(p) for root in ("common", "services") for p in (REPO / root).rglob("*.py")
               if DECLARES_SCHEMA.search(p.read_text())}
     return sorted(found | set(EXPLICIT))
@@ -38,10 +38,10 @@ def contract_modules() -> list[str]:
 
 def test_the_list_covers_every_model_and_schema():
     modules = contract_modules()
-    assert {"viena.services.gnss.model.fix", "viena.services.imu.model.sample", "viena.services.sim.model.truth",
-            "viena.services.pilot.model.state", "viena.services.ntrip.model.state",
-            "viena.services.steering.model.state", "viena.services.estimator.state",
-            "viena.common.health"} <= set(modules)
+    assert {f"viena.common.samples.{name}" for name in (
+        "fix", "corrections", "ntrip", "imu", "steering", "estimator", "pilot", "truth", "health", "topics")} | {
+        "viena.services.imu.model.sample_builder", "viena.services.sim.model.truth",
+        "viena.services.steering.model.state", "viena.common.health", "viena.common.samples"} <= set(modules)
     assert len(modules) >= 45
 
 

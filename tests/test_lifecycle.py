@@ -7,8 +7,8 @@ import time
 import pytest
 from vienatest import collect, wait_for_line, wait_until
 
-from viena.common.health import HEALTH
-from viena.services.sim.model.truth import TRUTH
+from viena.common.samples.health import HEALTH
+from viena.common.samples.truth import TRUTH
 
 pytestmark = pytest.mark.slow  # every service is started as a process
 

@@ -11,9 +11,10 @@ import pytest
 import serial
 from vienatest import wait_until
 
-from viena.common.health import CONNECT_FAILURES, CONNECTED, PORT_FAILURES, RECONNECTS, Health
+from viena.common.health import Health
 from viena.common.link import SerialLink
 from viena.common.link_reader import LinkReader
+from viena.common.samples.health import CONNECT_FAILURES, CONNECTED, PORT_FAILURES, RECONNECTS
 from viena.common.silence import SilenceWatch
 from viena.common.supervisor import Backoff, Device, DeviceSupervisor
 

@@ -13,8 +13,8 @@ import stat
 import pytest
 from vienatest import collect_until, open_session, sim_profile_up, viena
 
+from viena.common.samples.fix import solution_kind
 from viena.common.schema import unpack
-from viena.services.gnss.model.fix import solution_kind
 
 pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=60)]
 

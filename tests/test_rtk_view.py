@@ -17,11 +17,11 @@ from vienatest import open_session, viena
 
 from viena.common.display import CORRECTIONS_STALE_S
 from viena.common.recording import RecordingWriter
+from viena.common.samples.corrections import CORRECTIONS, corrections_sample
+from viena.common.samples.fix import FIX
+from viena.common.samples.ntrip import STATE
 from viena.hz import CorrectionsMix, SolutionMix
 from viena.monitor import MonitorModel, render
-from viena.services.gnss.model.fix import FIX
-from viena.services.ntrip.model.corrections import CORRECTIONS, corrections_sample
-from viena.services.ntrip.model.state import STATE
 
 T0 = 1_777_630_323_000_000_000
 FIX_KEY = "viena/elettra/gnss/gnss0/fix"

@@ -7,10 +7,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from viena.common.errors import SampleError
-from viena.common.health import HEALTH
+from viena.common.samples.health import HEALTH
+from viena.common.samples.truth import TRUTH
 from viena.common.schema import F, Schema, schema_of
 from viena.services.sim.model.car import SimCar
-from viena.services.sim.model.truth import TRUTH, truth_sample
+from viena.services.sim.model.truth import truth_sample
 
 EXAMPLE = Schema("viena.test.example/1", {
     "t": F.time, "seq": F.int, "x_m": F.float, "v": F.vec(3), "name": F.str,

@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 from vienatest import collect, collect_until, open_session, sim_profile_up, viena, wait_for_subscriber, wait_until
 
-from viena.common.health import HEALTH
-from viena.services.sim.model.truth import TRUTH
+from viena.common.samples.health import HEALTH
+from viena.common.samples.steering import STATE as STEERING
+from viena.common.samples.truth import TRUTH
 from viena.services.steering.client import SteeringClient
-from viena.services.steering.model.state import STATE as STEERING
 
 pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=5)]  # the whole sim profile
 

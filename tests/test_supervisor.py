@@ -8,7 +8,8 @@ import threading
 
 import pytest
 
-from viena.common.health import (
+from viena.common.health import Health
+from viena.common.samples.health import (
     CONNECT_FAILURES,
     CONNECTED,
     DEVICE_ERRORS,
@@ -18,7 +19,6 @@ from viena.common.health import (
     PORT_FAILURES,
     RECONNECTS,
     SILENCES,
-    Health,
 )
 from viena.common.silence import SilenceWatch
 from viena.common.supervisor import Backoff, Device, DeviceSupervisor

@@ -1,5 +1,6 @@
-"""`viena list`: the keys the car publishes, each with its schema and rate, and the
-processes that are alive (their liveliness tokens).
+"""`viena list`: the keys the car publishes, each with its schema and rate (beside the
+rate the table of topics, common/samples/topics.py, gives the simulated car, and the
+program that publishes it), and the processes that are alive (their liveliness tokens).
 
 It listens to viena/<car>/** (or KEYEXPR) for --duration seconds, so a key is listed once
 a sample has come on it: keys slower than that (none of viena's, whose slowest is
@@ -15,6 +16,7 @@ import threading
 import time
 
 from viena.common.recording import schema_name
+from viena.common.samples.topics import topic_of_key
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
 from viena.hz import RateMeter
@@ -43,9 +45,14 @@ class KeyTable:
         rows = []
         for key, (encoding, meter) in items:
             rates = meter.rates()
+            found = topic_of_key(key)
+            topic = None if found is None else found[0]
             rows.append({"key": key, "schema": schema_name(encoding) or encoding or "-",
                          "rate_hz": rates.rate_hz, "samples": rates.samples,
-                         "bytes_per_sample": rates.bytes_per_sample})
+                         "bytes_per_sample": rates.bytes_per_sample,
+                         "topic": None if topic is None else topic.name,
+                         "nominal_hz": None if topic is None else topic.nominal_hz,
+                         "producer": None if topic is None else topic.producer})
         return rows
 
 
@@ -80,8 +87,8 @@ def _run(args: argparse.Namespace) -> int:
         str(s.key_expr), str(s.encoding), time.monotonic(), len(s.payload)))
     try:
         stop.wait(args.duration)
-        alive = sorted(str(r.ok.key_expr).removeprefix(link.keys.key("alive") + "/")
-                       for r in session.liveliness().get(link.keys.key("alive", "**"), timeout=2.0)
+        alive = sorted(str(r.ok.key_expr).removeprefix(link.keys.alive()[:-2])
+                       for r in session.liveliness().get(link.keys.alive(), timeout=2.0)
                        if r.ok is not None)
     finally:
         sub.undeclare()
@@ -101,10 +108,12 @@ def _run(args: argparse.Namespace) -> int:
 def _print(rows: list[dict], alive: list[str], duration_s: float) -> None:
     width = max([len("KEY"), *(len(r["key"]) for r in rows)])
     schema_width = max([len("SCHEMA"), *(len(r["schema"]) for r in rows)])
-    print(f"{'KEY':<{width}}  {'SCHEMA':<{schema_width}}  {'RATE Hz':>8}  {'B/SAMPLE':>8}")
+    print(f"{'KEY':<{width}}  {'SCHEMA':<{schema_width}}  {'RATE Hz':>8}  {'NOMINAL':>8}  {'B/SAMPLE':>8}  PRODUCER")
     for r in rows:
         rate = f"{r['rate_hz']:.1f}" if r["rate_hz"] is not None else f"<{1 / duration_s:.1f}"
-        print(f"{r['key']:<{width}}  {r['schema']:<{schema_width}}  {rate:>8}  {r['bytes_per_sample']:>8.0f}")
+        nominal = "-" if r["nominal_hz"] is None else f"{r['nominal_hz']:g}"
+        print(f"{r['key']:<{width}}  {r['schema']:<{schema_width}}  {rate:>8}  {nominal:>8}  "
+              f"{r['bytes_per_sample']:>8.0f}  {r['producer'] or '-'}")
     print(f"alive: {', '.join(alive) if alive else 'no process (no liveliness token)'}")
 
 

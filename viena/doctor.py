@@ -41,11 +41,17 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from viena import compose
 from viena.common.errors import ConfigError, InputError
+from viena.common.keys import Keys
 from viena.common.runstate import run_dir
+from viena.common.samples import topics
 from viena.common.session import Unreachable, open_session, version_text, zenoh_config
+
+if TYPE_CHECKING:
+    import zenoh
 
 OK, WARN, FAIL = "OK", "WARN", "FAIL"
 DISK_FAIL_BYTES = 1e9
@@ -100,7 +106,7 @@ def program_settings(program: Program, toml: dict, settings_path: str):
     """The settings the program runs with, read by its own service class."""
     from viena.settings_cli import services
 
-    cls = services().get(program.service)
+    cls = services().get(program.service) if program.service else None
     if cls is None:
         raise ConfigError(f"no viena service '{program.service}' (viena/services/{program.service}/service.py)")
     unit = program.unit or cls.default_unit
@@ -143,7 +149,8 @@ def _listening(what: str, host: str, port: str, hint: str) -> Check:
         with socket.create_connection((host or "127.0.0.1", int(port)), timeout=1.0):
             return Check(OK, what, "listening")
     except (OSError, ValueError) as exc:
-        return Check(FAIL, what, f"nothing answers ({exc.strerror or exc}): {hint}")
+        why = exc.strerror if isinstance(exc, OSError) else None
+        return Check(FAIL, what, f"nothing answers ({why or exc}): {hint}")
 
 
 def check_can(interface: str, channel: str, bitrate: int, ip_json: str | None = None) -> Check:
@@ -229,7 +236,7 @@ def _now():
 
 
 def check_router(connect: list[str], keys: str | None, car: str, identity: str | None,
-                 profile: str, up: bool) -> tuple[Check, object]:
+                 profile: str, up: bool) -> tuple[Check, zenoh.Session | None]:
     """A session with the router, and the session (None if none) for the GNSS check."""
     where = ", ".join(connect)
     args = argparse.Namespace(connect=connect, keys=keys, car=car, identity=identity, config=None)
@@ -303,8 +310,8 @@ class Heard:
 
 
 def listen_gnss(session, car: str, wait_s: float = FIX_WAIT_S) -> Heard:
-    from viena.common.health import HEALTH
-    from viena.services.gnss.model.fix import FIX
+    from viena.common.samples.fix import FIX
+    from viena.common.samples.health import HEALTH
 
     heard = Heard([], {})
 
@@ -320,8 +327,8 @@ def listen_gnss(session, car: str, wait_s: float = FIX_WAIT_S) -> Heard:
         except InputError:
             return
         heard.health[str(sample.key_expr).split("/")[-2]] = health
-    subs = [session.declare_subscriber(f"viena/{car}/gnss/*/fix", on_fix),
-            session.declare_subscriber(f"viena/{car}/gnss/*/health", on_health)]
+    subs = [session.declare_subscriber(Keys(car).of(topics.GNSS_FIX), on_fix),
+            session.declare_subscriber(Keys(car).of(topics.HEALTH, service="gnss"), on_health)]
     time.sleep(wait_s)
     for sub in subs:
         sub.undeclare()
@@ -348,7 +355,8 @@ def check_receivers(health: dict[str, dict]) -> list[Check]:
     is given and whether it refused it."""
     checks = []
     for unit, sample in sorted(health.items()):
-        state = sample.get("state") if isinstance(sample.get("state"), dict) else {}
+        said_state = sample.get("state")
+        state: dict = said_state if isinstance(said_state, dict) else {}
         model, firmware = state.get("receiver_model"), state.get("receiver_firmware")
         given, refused = state.get("corrections") or "", state.get("corrections_refused") or ""
         if not model and not state.get("receiver_version_error") and not given:
@@ -487,17 +495,33 @@ def run(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
-def diagnose(args: argparse.Namespace) -> list[Check]:
+@dataclass(frozen=True)
+class ProfileRun:
+    """The profile as its programs will see it: its variables, whether it is up, its
+    programs and its settings."""
+    name: str
+    env: dict[str, str]
+    up: bool
+    programs: list[Program]
+    toml: dict
+    car: str
+
+    @property
+    def settings_path(self) -> str:
+        return self.env["VIENA_SETTINGS"]
+
+
+def read_profile(args: argparse.Namespace) -> ProfileRun | Check:
+    """The profile asked for (else the one running, else the default), its variables put in
+    this process's environment (its settings read them); a FAIL if it cannot be read."""
     from viena.common.config import load_toml
-    from viena.common.keystore import KeyStore
 
     running = compose.running_profiles()
     profile = args.profile or (running[0] if running else compose.DEFAULT_PROFILE)
-    checks = check_versions()
     try:
         conf = compose.profile_file(profile)
     except compose.ComposeError as exc:
-        return checks + [Check(FAIL, "profile", str(exc))]
+        return Check(FAIL, "profile", str(exc))
     env, up = profile_environment(profile)
     if getattr(args, "rtk", False) and not up:
         env.update(compose.rtk_environment(env))
@@ -506,17 +530,21 @@ def diagnose(args: argparse.Namespace) -> list[Check]:
     try:
         toml = load_toml(env["VIENA_SETTINGS"])
     except ConfigError as exc:
-        return checks + [Check(FAIL, "profile", str(exc))]
+        return Check(FAIL, "profile", str(exc))
     car = toml.get("car") or env.get("VIENA_CAR") or "elettra"
-    checks.append(Check(OK, "profile", f"{profile} ({'up' if up else 'not up'}): "
-                        f"{', '.join(p.name for p in programs)}"))
+    return ProfileRun(profile, env, up, programs, toml, car)
 
-    ntrip = None                                   # the NTRIP client's settings, if it runs
-    for program in programs:
+
+def check_devices(run: ProfileRun) -> tuple[list[Check], Any]:
+    """Each program's settings, and the devices they open; and the NTRIP client's settings,
+    if it runs (None if not)."""
+    checks: list[Check] = []
+    ntrip = None
+    for program in run.programs:
         if program.service is None:
             continue
         try:
-            settings = program_settings(program, toml, env["VIENA_SETTINGS"])
+            settings = program_settings(program, run.toml, run.settings_path)
         except ConfigError as exc:
             checks.append(Check(FAIL, f"settings {program.name}", str(exc)))
             continue
@@ -527,51 +555,75 @@ def diagnose(args: argparse.Namespace) -> list[Check]:
         elif program.service == "steering":
             drive = settings.drive
             checks.append(check_can(drive.interface, drive.channel, drive.bitrate))
+    return checks, ntrip
 
-    link = env.get("VIENA_LINK", "tcp")
-    keys = args.keys or os.environ.get("VIENA_KEYS")
+
+def check_link(run: ProfileRun, keys: str | None) -> tuple[list[Check], zenoh.Session | None]:
+    """The keys (on a TLS profile) and a session with the router, kept open (None if none)
+    for the checks that listen."""
+    from viena.common.keystore import KeyStore
+
+    checks: list[Check] = []
+    link = run.env.get("VIENA_LINK", "tcp")
     identity = None
     if link == "tls":
-        store = KeyStore.for_car(car, keys)
-        names = [p.unit or p.service for p in programs if p.service]
-        checks += check_keys(store, names, any(p.service is None for p in programs))
+        store = KeyStore.for_car(run.car, keys)
+        names = [p.unit or p.service for p in run.programs if p.service]
+        checks += check_keys(store, names, any(p.service is None for p in run.programs))
         keys = str(store.dir)
         identity = next((n for n in ("observer", "pilot", "estimator", *names)
                          if (store.dir / f"{n}.pem").exists()), None)
     else:
         checks.append(Check(OK, "keys", "not needed: plain TCP on this machine"
-                            if env.get("VIENA_INSECURE") != "1" else "none: INSECURE run (--insecure)"))
-
-    connect = (env.get("VIENA_CONNECT") or compose.client_connect(env) or "tcp/127.0.0.1:7447").split(",")
-    session = None
+                            if run.env.get("VIENA_INSECURE") != "1" else "none: INSECURE run (--insecure)"))
+    connect = (run.env.get("VIENA_CONNECT") or compose.client_connect(run.env) or "tcp/127.0.0.1:7447").split(",")
     if link == "tls" and identity is None:
         checks.append(Check(FAIL, f"router {', '.join(connect)}", "not tried: no identity to present (keys above)"))
-    else:
-        router, session = check_router(connect, keys, car, identity, profile, up)
-        checks.append(router)
-    if up:
-        checks.append(check_programs(profile))
+        return checks, None
+    router, session = check_router(connect, keys, run.car, identity, run.name, run.up)
+    checks.append(router)
+    return checks, session
+
+
+def check_corrections(run: ProfileRun, ntrip, fixes: list[dict]) -> list[Check]:
+    """The corrections chain, when the profile runs the NTRIP client (`ntrip`: its settings)."""
+    if ntrip is None:
+        return []
+    if run.env.get("VIENA_RTK") != "true":
+        return [Check(OK, "ntrip", "off: the profile runs without corrections (`viena up --rtk`; "
+                      "`viena doctor --rtk` checks the caster)")]
+    if not ntrip.caster:
+        return [Check(FAIL, "ntrip", "no caster: give it in the profile's settings ([ntrip] caster)")]
+    return check_ntrip(ntrip, run.car, car_position(fixes),
+                       twin_in_profile=any(p.name == "caster" for p in run.programs))
+
+
+def diagnose(args: argparse.Namespace) -> list[Check]:
+    checks = check_versions()
+    run = read_profile(args)
+    if isinstance(run, Check):
+        return checks + [run]
+    checks.append(Check(OK, "profile", f"{run.name} ({'up' if run.up else 'not up'}): "
+                        f"{', '.join(p.name for p in run.programs)}"))
+    devices, ntrip = check_devices(run)
+    checks += devices
+    link, session = check_link(run, args.keys or os.environ.get("VIENA_KEYS"))
+    checks += link
+    if run.up:
+        checks.append(check_programs(run.name))
     checks.append(check_clock())
     heard = Heard([], {})
     if session is not None:
         try:
-            if any(p.service == "gnss" for p in programs) or up:
-                heard = listen_gnss(session, car)
+            if any(p.service == "gnss" for p in run.programs) or run.up:
+                heard = listen_gnss(session, run.car)
                 checks.append(check_gnss_offset(heard.fixes))
         finally:
             session.close()
     checks += check_receivers(heard.health)
-    if ntrip is not None:
-        if env.get("VIENA_RTK") != "true":
-            checks.append(Check(OK, "ntrip", "off: the profile runs without corrections (`viena up --rtk`; "
-                                "`viena doctor --rtk` checks the caster)"))
-        elif not ntrip.caster:
-            checks.append(Check(FAIL, "ntrip", "no caster: give it in the profile's settings ([ntrip] caster)"))
-        else:
-            checks += check_ntrip(ntrip, car, car_position(heard.fixes),
-                                  twin_in_profile=any(p.name == "caster" for p in programs))
+    checks += check_corrections(run, ntrip, heard.fixes)
     checks.append(check_disk("disk (recordings)", args.recordings))
-    checks.append(check_disk("disk (logs)", run_dir(profile)))
+    checks.append(check_disk("disk (logs)", run_dir(run.name)))
     return checks
 
 

@@ -41,7 +41,8 @@ from viena.common.access import ROLES
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
 from viena.common.recording import ReceiveClock
-from viena.common.session import PERSON_IDENTITY, add_common_arguments, config_endpoints
+from viena.common.samples import topics
+from viena.common.session import PERSON_IDENTITY, add_common_arguments, config_endpoints, zenoh_options
 from viena.common.signals import stop_on_signals
 from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions
 
@@ -52,7 +53,7 @@ DEFAULT_BACKLOG = 256
 #: samples waiting between zenoh's threads and the converting thread (about 2 s of the car)
 QUEUE_SAMPLES = 1000
 ESTOP_SERVICE = "estop"
-ESTOP_KEY = "steering/estop"
+ESTOP_KEY = topics.STEERING_ESTOP.key()
 DROP_REPORT_PERIOD_S = 10.0
 
 
@@ -155,7 +156,7 @@ def estop_service(session, keys: Keys):
     """The Foxglove service `estop`: a put on steering/estop, answered {"status": "sent"}."""
     import foxglove
 
-    key = keys.key(*ESTOP_KEY.split("/"))
+    key = keys.of(topics.STEERING_ESTOP)
     request = {"type": "object", "title": "viena.estop.request",
                "properties": {"reason": {"type": "string"}}, "additionalProperties": True}
     response = {"type": "object", "title": "viena.estop.response",
@@ -175,7 +176,7 @@ def estop_service(session, keys: Keys):
             pass
         log.warning("e-stop from Foxglove client %s%s", req.client_id, f": {reason}" if reason else "")
         session.put(key, json.dumps({"by": "viena foxglove", "client": req.client_id, "reason": reason}),
-                    encoding="application/json")
+                    encoding="application/json", **zenoh_options(topics.STEERING_ESTOP))
         return json.dumps({"status": "sent", "key": key}).encode()
 
     return foxglove.Service(ESTOP_SERVICE, schema=foxglove.ServiceSchema(

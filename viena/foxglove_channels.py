@@ -11,6 +11,7 @@ counted in `invalid`, never sent.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import foxglove
 import foxglove.channels
@@ -22,11 +23,22 @@ from viena.foxglove_messages import JSON_KINDS, STATEFUL_KINDS, Converter, Route
 ENCODING_METADATA = "viena_encoding"
 
 
+class _Channel(Protocol):
+    """What a derived channel is to us: foxglove.Channel (JSON) or a typed one
+    (foxglove.channels.*Channel), which share no base class."""
+
+    def has_sinks(self) -> bool: ...
+
+    def log(self, message: Any, /, *, log_time: int | None = None) -> None: ...
+
+    def close(self) -> None: ...
+
+
 @dataclass
 class _KeyChannels:
     route: Route
     json: foxglove.Channel
-    derived: dict[str, object] = field(default_factory=dict)      # topic -> typed channel
+    derived: dict[str, _Channel] = field(default_factory=dict)      # topic -> typed channel
 
     def watched(self) -> bool:
         return self.keeps_state or self.json.has_sinks() or self.derived_watched()
@@ -49,7 +61,7 @@ class FoxgloveChannels:
         self.invalid: dict[str, int] = {}
         self.logged = 0
         self._keys: dict[tuple[str, str], _KeyChannels] = {}
-        self._typed: dict[str, object] = {}
+        self._typed: dict[str, _Channel] = {}
 
     def wanted(self, key: str, encoding: str) -> bool:
         """Whether a sample of this key is worth handing over: its channels are not

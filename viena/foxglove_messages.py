@@ -34,7 +34,6 @@ SceneUpdate comes with the first `pilot/path` after one (the pilot sends it ever
 """
 from __future__ import annotations
 
-import importlib
 import json
 import math
 from dataclasses import dataclass
@@ -66,23 +65,10 @@ from viena.common.geodesy import LocalFrame
 from viena.common.json_schema import JsonForm
 from viena.common.payload import to_jsonable
 from viena.common.recording import decode_value
+from viena.common.samples import topics  # the table: every contract's schema, registered by name
+from viena.common.samples.fix import NO_FIX_ECEF, SOLUTION_KINDS, solution_kind, solution_rank
 from viena.common.schema import F, Schema, schema_of
 from viena.services.pilot.model.path import checkpoints_enu
-
-#: the modules that own the car's schemas: importing them registers the schemas by name
-SCHEMA_OWNERS = ("viena.services.gnss.model.fix", "viena.services.imu.model.sample",
-                 "viena.services.steering.model.state", "viena.services.estimator.state",
-                 "viena.services.sim.model.truth", "viena.services.pilot.model.state",
-                 "viena.services.ntrip.model.state", "viena.common.health")
-for _owner in SCHEMA_OWNERS:
-    importlib.import_module(_owner)
-
-from viena.common.health import HEALTH  # noqa: E402  (after the owners, for one import list)
-from viena.services.estimator.state import STATE  # noqa: E402
-from viena.services.gnss.model.fix import FIX, NO_FIX_ECEF, SOLUTION_KINDS, solution_kind, solution_rank  # noqa: E402
-from viena.services.ntrip.model.state import STATE as NTRIP_STATE  # noqa: E402
-from viena.services.pilot.model.state import PATH  # noqa: E402
-from viena.services.sim.model.truth import TRUTH  # noqa: E402
 
 WORLD_FRAME = "enu"
 CAR_FRAME = "car"
@@ -410,7 +396,8 @@ def ntrip_status(state: dict) -> dict:
     its nil fields: streaming or why not, how much, from which base, how fresh."""
     age = number(state.get("last_message_age_s"))
     streaming = state.get("state") == "streaming"
-    messages = state.get("messages") if isinstance(state.get("messages"), dict) else {}
+    said_messages = state.get("messages")
+    messages: dict = said_messages if isinstance(said_messages, dict) else {}
     types = sorted(int(t) for t in messages if str(t).isdigit())
     status = {"t": state["t"], "caster": state["caster"], "mountpoint": state["mountpoint"],
               "state": state["state"], "connected": state["connected"] is True,
@@ -477,9 +464,15 @@ def route_scene(path: dict, origin: tuple[float, float, float]) -> SceneUpdate:
                                              id=ROUTE_ENTITY, lines=[line], spheres=spheres)])
 
 
+#: the topics whose samples make Foxglove messages, and what kind of conversion each takes
+DERIVED_KINDS = {topics.GNSS_FIX: "fix", topics.ESTIMATOR_STATE: "estimator", topics.SIM_TRUTH: "truth",
+                 topics.HEALTH: "health", topics.PILOT_PATH: "path", topics.NTRIP_STATE: "ntrip"}
+
+
 def _derived_kind(schema: Schema | None) -> str:
-    kinds = {FIX: "fix", STATE: "estimator", TRUTH: "truth", HEALTH: "health", PATH: "path", NTRIP_STATE: "ntrip"}
-    return kinds.get(schema, "") if schema else ""
+    """By the topic the schema travels on (common/samples/topics.py)."""
+    topic = topics.BY_SCHEMA.get(schema.name) if schema is not None else None
+    return DERIVED_KINDS.get(topic, "") if topic is not None else ""
 
 
 def _vector(xyz) -> Vector3:

@@ -27,6 +27,7 @@ import sys
 import threading
 import time
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from viena.common.errors import SampleError
@@ -58,11 +59,15 @@ class Rates:
     def line(self) -> str:
         if self.rate_hz is None:
             return f"{self.samples} sample{'s' if self.samples != 1 else ''}, too few for a rate"
-        ms = 1e3
-        return (f"{self.rate_hz:.2f} Hz, period {self.period_s * ms:.2f} ms (std "
-                f"{self.period_std_s * ms:.2f}, min {self.period_min_s * ms:.2f}, max "
-                f"{self.period_max_s * ms:.2f} ms), {human_bytes(self.bytes_per_s)}/s "
+        per_s = "?" if self.bytes_per_s is None else human_bytes(self.bytes_per_s)   # set with the rate
+        return (f"{self.rate_hz:.2f} Hz, period {_ms(self.period_s)} ms (std "
+                f"{_ms(self.period_std_s)}, min {_ms(self.period_min_s)}, max "
+                f"{_ms(self.period_max_s)} ms), {per_s}/s "
                 f"({self.bytes_per_sample:.0f} B/sample), {self.samples} samples")
+
+
+def _ms(seconds: float | None) -> str:
+    return "?" if seconds is None else f"{seconds * 1e3:.2f}"
 
 
 class RateMeter:
@@ -117,7 +122,7 @@ class SolutionMix:
 
     def add(self, fix) -> None:
         """One decoded fix (any map: a field missing or wrong is left out, never raised)."""
-        from viena.services.gnss.model.fix import solution_kind
+        from viena.common.samples.fix import solution_kind
 
         if not isinstance(fix, dict):
             return
@@ -177,7 +182,8 @@ class CorrectionsMix:
         t = sample.get("t") if type(sample.get("t")) is int else None
         data = sample.get("data")
         size = len(data) if isinstance(data, (bytes, bytearray)) else 0
-        types = sample.get("types") if isinstance(sample.get("types"), (list, tuple)) else ()
+        said_types = sample.get("types")
+        types = said_types if isinstance(said_types, (list, tuple)) else ()
         base = sample.get("base_id")
         self._samples.append((t, size, str(sample.get("format") or "?"),
                               tuple(x for x in types if type(x) is int), None if base in (None, "") else str(base)))
@@ -238,6 +244,59 @@ def run(args: argparse.Namespace) -> int:
     return guarded("viena hz", _run, args)
 
 
+class KeyRates:
+    """Per key heard: its rate meter and, for a schema that says more than its rate, its mix
+    and the payloads not yet decoded. zenoh's thread adds (`on_sample`), the printing
+    thread decodes and reads (`lines`)."""
+
+    def __init__(self, window: int, on_heard: Callable[[], None]):
+        self.window = window
+        self.meters: dict[str, RateMeter] = {}
+        self.mixes: dict[str, SolutionMix | CorrectionsMix] = {}
+        self.payloads: dict[str, deque[tuple[bytes, str]]] = {}    # of the keys with a mix, not yet read
+        self._lock = threading.Lock()
+        self._on_heard = on_heard
+
+    def on_sample(self, sample) -> None:         # zenoh's thread: stamp, count, keep a fix's bytes
+        now = time.monotonic()
+        key = str(sample.key_expr)
+        with self._lock:
+            meter = self.meters.get(key)
+            if meter is None:
+                meter = self.meters[key] = RateMeter(self.window)
+                encoding = str(sample.encoding)
+                mix = content_mix(schema_name(encoding), self.window)
+                if mix is not None:
+                    self.mixes[key], self.payloads[key] = mix, deque(maxlen=self.window)
+            meter.add(now, len(sample.payload))
+            if key in self.payloads:
+                self.payloads[key].append((sample.payload.to_bytes(), str(sample.encoding)))
+        self._on_heard()
+
+    def read_payloads(self) -> None:            # the printing thread decodes what came
+        with self._lock:
+            taken = {key: waiting for key, waiting in self.payloads.items() if waiting}
+            for key in taken:
+                self.payloads[key] = deque(maxlen=self.window)
+        for key, waiting in taken.items():
+            for data, encoding in waiting:
+                try:
+                    self.mixes[key].add(decode_value(data, encoding))
+                except SampleError:
+                    pass
+
+    def lines(self) -> list[str]:
+        """One line per key, its rates and its mix (a mix is read and fed by this thread alone)."""
+        self.read_payloads()
+        with self._lock:
+            rates = [(key, meter.rates()) for key, meter in sorted(self.meters.items())]
+        lines = []
+        for key, measured in rates:
+            mix = self.mixes.get(key)
+            lines.append(f"{key}: {measured.line()}" + (f"; {mix.line()}" if mix is not None and len(mix) else ""))
+        return lines
+
+
 def _run(args: argparse.Namespace) -> int:
     tool_logging(args)
     if args.window < 2:
@@ -248,52 +307,15 @@ def _run(args: argparse.Namespace) -> int:
     session = link.open(stop, args.timeout)
     if session is None:
         return 0
-    meters: dict[str, RateMeter] = {}
-    mixes: dict[str, SolutionMix | CorrectionsMix] = {}
-    payloads: dict[str, deque[tuple[bytes, str]]] = {}    # of the keys with a mix, not yet read
-    lock = threading.Lock()
     silence = SilenceWarning("viena hz", [keyexpr])
-
-    def on_sample(sample) -> None:         # zenoh's thread: stamp, count, keep a fix's bytes
-        now = time.monotonic()
-        key = str(sample.key_expr)
-        with lock:
-            meter = meters.get(key)
-            if meter is None:
-                meter = meters[key] = RateMeter(args.window)
-                encoding = str(sample.encoding)
-                mix = content_mix(schema_name(encoding), args.window)
-                if mix is not None:
-                    mixes[key], payloads[key] = mix, deque(maxlen=args.window)
-            meter.add(now, len(sample.payload))
-            if key in payloads:
-                payloads[key].append((sample.payload.to_bytes(), str(sample.encoding)))
-        silence.heard()
-
-    def read_payloads() -> None:            # the printing thread decodes what came
-        with lock:
-            taken = {key: waiting for key, waiting in payloads.items() if waiting}
-            for key in taken:
-                payloads[key] = deque(maxlen=args.window)
-        for key, waiting in taken.items():
-            for data, encoding in waiting:
-                try:
-                    mixes[key].add(decode_value(data, encoding))
-                except SampleError:
-                    pass
-
-    sub = session.declare_subscriber(keyexpr, on_sample)
+    heard = KeyRates(args.window, silence.heard)
+    sub = session.declare_subscriber(keyexpr, heard.on_sample)
     end = time.monotonic() + args.duration if args.duration > 0 else None
     try:
         while not stop.wait(PRINT_PERIOD_S if end is None else max(0.0, min(PRINT_PERIOD_S, end - time.monotonic()))):
             silence.check()
-            read_payloads()
-            with lock:
-                rates = [(key, meter.rates()) for key, meter in sorted(meters.items())]
-            for key, measured in rates:
-                mix = mixes.get(key)            # a mix is read and fed by this thread alone
-                print(f"{key}: {measured.line()}" + (f"; {mix.line()}" if mix is not None and len(mix) else ""),
-                      flush=True)
+            for line in heard.lines():
+                print(line, flush=True)
             if end is not None and time.monotonic() >= end:
                 break
     except BrokenPipeError:
@@ -301,10 +323,10 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         sub.undeclare()
         session.close()
-    if not meters and not silence.said:
+    if not heard.meters and not silence.said:
         raise Fail(f"nothing came on '{keyexpr}': is the key right? `viena list` shows what the "
                    f"car publishes")
-    return 0 if meters else 1
+    return 0 if heard.meters else 1
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -5,8 +5,8 @@
     duration  312.4 s, 2026-05-01 10:12:03.120 to 10:17:15.520 UTC
     samples   48,213 on 9 keys
 
-    KEY                              SCHEMA                  COUNT   RATE Hz   SIZE
-    viena/elettra/estimator/state    viena.estimator.state/2 31240   100.0     2.9 MB
+    KEY                              SCHEMA                  COUNT   RATE Hz   NOMINAL   SIZE
+    viena/elettra/estimator/state    viena.estimator.state/2 31240   100.0     82.5      2.9 MB
 
 then, for the GNSS fixes and the corrections, what they carried (the solution types and
 the corrections' age; the correction bytes a second and RTCM message types: as `viena hz`
@@ -29,6 +29,7 @@ from datetime import UTC, datetime
 
 from viena.common.errors import InputError, SampleError
 from viena.common.recording import Recording, decode_value, human_bytes
+from viena.common.samples.topics import topic_of_key
 from viena.hz import CorrectionsMix, SolutionMix, content_mix
 from viena.tool import Fail, guarded
 
@@ -51,7 +52,7 @@ class KeyStats:
 
     @property
     def rate_hz(self) -> float | None:
-        if self.count < 2 or self.last_ns <= self.first_ns:
+        if self.first_ns is None or self.last_ns is None or self.count < 2 or self.last_ns <= self.first_ns:
             return None
         return (self.count - 1) / ((self.last_ns - self.first_ns) / 1e9)
 
@@ -71,6 +72,12 @@ def summarize(recording: Recording) -> dict[str, KeyStats]:
             except SampleError:
                 pass                # counted, not read: a damaged sample says nothing here
     return dict(sorted(keys.items()))
+
+
+def nominal_hz(key: str) -> float | None:
+    """The simulated car's rate of the key's topic (common/samples/topics.py), if it has one."""
+    found = topic_of_key(key)
+    return None if found is None else found[0].nominal_hz
 
 
 def _utc(ns: int | None, fmt: str = "%Y-%m-%d %H:%M:%S.%f") -> str:
@@ -97,7 +104,7 @@ def _run(args: argparse.Namespace) -> int:
     except InputError as exc:
         raise Fail(str(exc), 2) from None
     first, last = recording.first_log_time, recording.last_log_time
-    duration_s = (last - first) / 1e9 if first is not None else 0.0
+    duration_s = (last - first) / 1e9 if first is not None and last is not None else 0.0
     problems = recording.report()
     if args.json:
         print(json.dumps({
@@ -105,6 +112,7 @@ def _run(args: argparse.Namespace) -> int:
             "metadata": recording.metadata, "start_ns": first, "end_ns": last,
             "duration_s": duration_s, "samples": recording.count, "problems": problems,
             "keys": {k: {"schema": s.schema, "count": s.count, "bytes": s.bytes, "rate_hz": s.rate_hz,
+                         "nominal_hz": nominal_hz(k),
                          **({"content": s.content.summary()} if s.content is not None else {})}
                      for k, s in keys.items()}}, indent=1))
         return 1 if problems else 0
@@ -119,10 +127,12 @@ def _run(args: argparse.Namespace) -> int:
     if keys:
         width = max(len("KEY"), *(len(k) for k in keys))
         swidth = max(len("SCHEMA"), *(len(s.schema) for s in keys.values()))
-        print(f"\n{'KEY':<{width}}  {'SCHEMA':<{swidth}}  {'COUNT':>8}  {'RATE Hz':>8}  {'SIZE':>9}")
+        print(f"\n{'KEY':<{width}}  {'SCHEMA':<{swidth}}  {'COUNT':>8}  {'RATE Hz':>8}  {'NOMINAL':>8}  {'SIZE':>9}")
         for key, s in keys.items():
             rate = "-" if s.rate_hz is None else f"{s.rate_hz:.1f}"
-            print(f"{key:<{width}}  {s.schema:<{swidth}}  {s.count:>8}  {rate:>8}  {human_bytes(s.bytes):>9}")
+            nominal = "-" if (n := nominal_hz(key)) is None else f"{n:g}"
+            print(f"{key:<{width}}  {s.schema:<{swidth}}  {s.count:>8}  {rate:>8}  {nominal:>8}  "
+                  f"{human_bytes(s.bytes):>9}")
         said = {key: s.content.line() for key, s in keys.items() if s.content is not None}
         if said:
             print(f"\n{'KEY':<{width}}  CONTENT")

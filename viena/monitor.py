@@ -37,18 +37,20 @@ from typing import Any
 
 from viena.common.display import Alert, fmt_age, fmt_map
 from viena.common.errors import InputError
-from viena.common.health import HealthReport
 from viena.common.keys import Keys
+from viena.common.samples import topics
+from viena.common.samples.corrections import monitor_view as corrections_view
+from viena.common.samples.estimator import monitor_view as estimator_view
+from viena.common.samples.fix import monitor_view as gnss_view
+from viena.common.samples.health import HealthReport
+from viena.common.samples.imu import monitor_view as imu_view
+from viena.common.samples.ntrip import monitor_view as ntrip_view
+from viena.common.samples.pilot import monitor_view as pilot_view
+from viena.common.samples.steering import monitor_view as steering_view
+from viena.common.samples.topics import Topic
+from viena.common.samples.truth import monitor_view as truth_view
 from viena.common.session import add_common_arguments, config_endpoints
 from viena.common.signals import stop_on_signals
-from viena.services.estimator.state import monitor_view as estimator_view
-from viena.services.gnss.model.fix import monitor_view as gnss_view
-from viena.services.imu.model.sample import monitor_view as imu_view
-from viena.services.ntrip.model.corrections import monitor_view as corrections_view
-from viena.services.ntrip.model.state import monitor_view as ntrip_view
-from viena.services.pilot.model.state import monitor_view as pilot_view
-from viena.services.sim.model.truth import monitor_view as truth_view
-from viena.services.steering.model.state import monitor_view as steering_view
 from viena.tool import Connection, Fail, add_timeout_flag, guarded, tool_logging
 
 DATA_STALE_S = 1.0
@@ -142,26 +144,21 @@ class MonitorModel:
         self.bad: dict[str, str] = {}
 
     # -- feeding --------------------------------------------------------------------------
-    def _local(self, key: str) -> list[str] | None:
-        prefix = self.keys.prefix + "/"
-        return key[len(prefix):].split("/") if key.startswith(prefix) else None
-
     def _service(self, name: str) -> ServiceState:
         return self.services.setdefault(name, ServiceState(name))
 
     def token(self, key: str, alive: bool, now: float) -> None:
-        parts = self._local(key)
-        if not parts or parts[0] != "alive" or len(parts) < 2:
+        found = self.keys.topic_of(key)
+        if found is None or found[0] is not topics.ALIVE:
             return
-        service = self._service("/".join(parts[1:]))
+        service = self._service(topics.process_name(found[1]))
         if service.token != alive:
             service.token, service.token_changed = alive, now
 
     def sample(self, key: str, value: Any, now: float, schema: str = "",
                count: int | None = None) -> None:
         """The newest sample on `key`; `count` is the total seen on it (default: one more)."""
-        parts = self._local(key)
-        if parts is None:
+        if self.keys.local(key) is None:
             return
         if not isinstance(value, dict):
             value = {"value": value}
@@ -177,8 +174,9 @@ class MonitorModel:
         if now - t_mark >= RATE_WINDOW_S:
             latest.rate_hz = (latest.count - n_mark) / (now - t_mark)
             latest.rate_mark = (now, latest.count)
-        if parts[-1] == "health" and len(parts) >= 2:
-            service = self._service("/".join(parts[:-1]))
+        found = self.keys.topic_of(key)
+        if found is not None and found[0] is topics.HEALTH:
+            service = self._service(topics.process_name(found[1]))
             service.health = latest
             service.errors_seen.append((now, HealthReport.of(value).errors))
             while len(service.errors_seen) > 2 and now - service.errors_seen[1][0] >= RECENT_ERRORS_S:
@@ -188,9 +186,7 @@ class MonitorModel:
         self.bad[key] = why
 
     # -- reading --------------------------------------------------------------------------
-    def _aged(self, latest: Latest | None, now: float, stale_s: float | None = None) -> Aged | None:
-        if latest is None:
-            return None
+    def _aged(self, latest: Latest, now: float, stale_s: float | None = None) -> Aged:
         age = max(0.0, now - latest.received)
         rate = latest.rate_hz
         if rate is not None and now - latest.rate_mark[0] > 2 * RATE_WINDOW_S:
@@ -200,31 +196,26 @@ class MonitorModel:
 
     def view(self, now: float) -> View:
         services = [self._service_view(s, now) for _, s in sorted(self.services.items())]
-        gnss, imu, others = {}, {}, []
-        steering = estimator = pilot = truth = ntrip = corrections = None
+        gnss: dict[str, Aged] = {}
+        imu: dict[str, Aged] = {}
+        others: list[Aged] = []
+        #: the panel of each single-key topic (a View field); fixes and IMU samples go by unit
+        panels: dict[Topic, Aged] = {}
         for key, latest in sorted(self.latest.items()):
-            parts = self._local(key)
+            found = self.keys.topic_of(key)
             aged = self._aged(latest, now)
-            if parts[-1] == "health":
+            topic, chunks = found if found is not None else (None, {})
+            if topic is topics.HEALTH:
                 continue
-            if len(parts) == 3 and parts[0] == "gnss" and parts[2] == "fix":
-                gnss[parts[1]] = aged
-            elif len(parts) == 3 and parts[0] == "imu" and parts[2] == "sample":
-                imu[parts[1]] = aged
-            elif parts == ["ntrip", "state"]:
-                ntrip = aged
-            elif parts == ["gnss", "corrections"]:
-                corrections = aged
-            elif parts == ["steering", "state"]:
-                steering = aged
-            elif parts == ["estimator", "state"]:
-                estimator = aged
-            elif parts == ["pilot", "state"]:
-                pilot = aged
-            elif parts == ["sim", "truth"]:
-                truth = aged
-            else:
+            if topic is topics.GNSS_FIX:
+                gnss[topics.unit_in(chunks)] = aged
+            elif topic is topics.IMU_SAMPLE:
+                imu[topics.unit_in(chunks)] = aged
+            elif topic in PANELS:
+                panels[topic] = aged
+            elif self.keys.local(key) is not None:              # `latest` holds the car's keys alone
                 others.append(aged)
+        steering, estimator, pilot, truth, ntrip, corrections = (panels.get(t) for t in PANELS)
         total = sum(a.rate_hz or 0.0 for a in (self._aged(x, now) for x in self.latest.values()))
         return View(self.keys.car, services, gnss, ntrip, corrections, imu, steering, estimator, pilot, truth,
                     others, dict(self.bad), total)
@@ -232,9 +223,14 @@ class MonitorModel:
     def _service_view(self, s: ServiceState, now: float) -> ServiceView:
         status = {True: "alive", False: "lost", None: "no token"}[s.token]
         since = None if s.token_changed is None else now - s.token_changed
-        health = self._aged(s.health, now, self.health_stale_s)
+        health = None if s.health is None else self._aged(s.health, now, self.health_stale_s)
         report = None if health is None else HealthReport.of(health.value, health.age_s)
         return ServiceView(s.name, status, since, health, report, error_rates(s.errors_seen))
+
+
+#: the monitor's panels of one key each, in the order View lists them
+PANELS = (topics.STEERING_STATE, topics.ESTIMATOR_STATE, topics.PILOT_STATE, topics.SIM_TRUTH, topics.NTRIP_STATE,
+          topics.GNSS_CORRECTIONS)
 
 
 def error_rates(seen) -> dict[str, float]:
@@ -385,7 +381,7 @@ def render(view: View, title: str = "", width: int | None = None):
     if view.ntrip:
         tables.append(_sample_rows("NTRIP client", {"ntrip": view.ntrip}, ntrip_view, "", width))
     if view.corrections:
-        tables.append(_sample_rows("corrections", {"gnss/corrections": view.corrections}, corrections_cells,
+        tables.append(_sample_rows("corrections", {topics.GNSS_CORRECTIONS.key(): view.corrections}, corrections_cells,
                                    "key", width))
     if view.imu:
         tables.append(_sample_rows("IMU", view.imu, imu_view, "unit"))
@@ -444,7 +440,7 @@ class LiveFeed:
         import zenoh
 
         self._ring = session.declare_subscriber(keys.all, zenoh.handlers.RingChannel(self.RING))
-        tokens = session.liveliness().declare_subscriber(keys.key("alive", "**"), self.on_token,
+        tokens = session.liveliness().declare_subscriber(keys.alive(), self.on_token,
                                                          history=True)
         return [self._ring, tokens]
 
@@ -542,7 +538,8 @@ def _run(args: argparse.Namespace) -> int:
     console = Console()
     deadline = time.monotonic() + args.duration if args.duration > 0 else None
     period = 1.0 / args.refresh
-    feed, declared = LiveFeed(), []
+    feed = LiveFeed()
+    declared: list = []
     try:
         with Live(console=console, auto_refresh=False, screen=console.is_terminal,
                   redirect_stderr=False) as live:

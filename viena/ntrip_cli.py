@@ -23,6 +23,7 @@ import threading
 import time
 
 from viena.common.errors import InputError
+from viena.common.samples import topics
 from viena.common.schema import SampleError, unpack
 from viena.common.session import add_common_arguments
 from viena.tool import Connection, Fail, guarded, tool_logging
@@ -96,7 +97,7 @@ def parse_near(text: str) -> tuple[float, float]:
 
 def car_position(args: argparse.Namespace, wait_s: float = FIX_WAIT_S) -> tuple[float, float] | None:
     """The newest valid fix on the car's bus within `wait_s`, or None (no router, no fix)."""
-    from viena.services.gnss.model.fix import FIX
+    from viena.common.samples.fix import FIX
 
     fields = FIX.reader("valid", "lat_deg", "lon_deg")
     try:
@@ -109,7 +110,7 @@ def car_position(args: argparse.Namespace, wait_s: float = FIX_WAIT_S) -> tuple[
     got: queue.Queue = queue.Queue()
     sub = None
     try:
-        sub = session.declare_subscriber(link.keys.key("gnss", "*", "fix"),
+        sub = session.declare_subscriber(link.keys.of(topics.GNSS_FIX),
                                          lambda s: got.put(s.payload.to_bytes()))
         end = time.monotonic() + wait_s
         while (left := end - time.monotonic()) > 0:
@@ -131,7 +132,7 @@ def car_position(args: argparse.Namespace, wait_s: float = FIX_WAIT_S) -> tuple[
 def sources(args: argparse.Namespace) -> int:
     from viena.services.ntrip.driver.caster import CasterAddress, LinkError, fetch_sourcetable
     from viena.services.ntrip.driver.credentials import CredentialsError, read_credentials
-    from viena.services.ntrip.driver.sourcetable import by_distance, mountpoints
+    from viena.services.ntrip.driver.sourcetable import Mountpoint, by_distance, mountpoints
 
     try:
         host, port = parse_caster(args.caster)
@@ -147,6 +148,7 @@ def sources(args: argparse.Namespace) -> int:
     where, said = near, "--near"
     if where is None:
         where, said = car_position(args), "the car's fix"
+    rows: list[tuple[Mountpoint, float | None]]
     if where is None:
         print(f"# no fix on the car's bus within {FIX_WAIT_S:g} s: distances need --near LAT,LON",
               file=sys.stderr)

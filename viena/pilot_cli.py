@@ -26,6 +26,7 @@ from pathlib import Path
 
 from viena.common.errors import InputError
 from viena.common.payload import is_json_text, to_jsonable
+from viena.common.samples import topics
 from viena.common.schema import unpack
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
@@ -123,7 +124,7 @@ def _route(args) -> int:
         if len(data) > MAX_ROUTE_BYTES:           # the pilot would refuse it, the router might drop it
             raise Fail(f"route refused: {len(data)} bytes: at most {MAX_ROUTE_BYTES} are read", 1)
     link, session = _connect(args, command=args.route_command in ("send", "show"))
-    key = link.keys.key("pilot", "route")
+    key = link.keys.of(topics.PILOT_ROUTE)
     try:
         if args.route_command == "record":
             return _record(session, link, args)
@@ -159,15 +160,15 @@ def _pilot(args) -> int:
     link, session = _connect(args, command=args.pilot_command != "status")
     try:
         if args.pilot_command == "status":
-            state = _one_state(session, link.keys.key("pilot", "state"), max(args.timeout, 3.0))
+            state = _one_state(session, link.keys.of(topics.PILOT_STATE), max(args.timeout, 3.0))
             if args.json:
                 print(json.dumps(to_jsonable(state)))
             else:
-                from viena.services.pilot.model.state import monitor_view
+                from viena.common.samples.pilot import monitor_view
                 for name, value in monitor_view(state).items():
                     print(f"{name:12s} {value}")
             return 0
-        answer = _ask(session, link.keys.key("pilot", "cmd"), json.dumps({"cmd": args.pilot_command}).encode(),
+        answer = _ask(session, link.keys.of(topics.PILOT_CMD), json.dumps({"cmd": args.pilot_command}).encode(),
                       max(args.timeout, 5.0))
         if answer.get("status") != "accepted":
             raise Fail(f"{args.pilot_command} refused: {answer.get('reason')}", 1)
@@ -197,8 +198,13 @@ def _record(session, link, args) -> int:
     if not args.every_m >= MIN_SPACING_M:
         raise Fail(f"--every-m must be at least {MIN_SPACING_M} m", 2)
     estimates: queue.Queue = queue.Queue(maxsize=1000)
-    key = link.keys.key("estimator", "state")
-    sub = session.declare_subscriber(key, lambda s: estimates.full() or estimates.put(s.payload.to_bytes()))
+    key = link.keys.of(topics.ESTIMATOR_STATE)
+
+    def keep(sample) -> None:          # the newest are dropped while the queue is full
+        if not estimates.full():
+            estimates.put(sample.payload.to_bytes())
+
+    sub = session.declare_subscriber(key, keep)
     stop = stop_on_signals()
     points: list[tuple[float, float]] = []
     last_enu = None

@@ -26,11 +26,13 @@ import sys
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from viena.common.errors import InputError, SampleError
 from viena.common.recording import Recording
+from viena.common.samples import topics
 
 #: No-solution position the NovAtel receivers send (see services/gnss/model/fix.py).
 NO_FIX_ECEF = (100.0, 0.0, 0.0)
@@ -118,35 +120,32 @@ def _number(v) -> float | None:
 def _vec(v, n: int) -> list[float] | None:
     if not isinstance(v, (list, tuple)) or len(v) != n:
         return None
-    out = [_number(x) for x in v]
-    return None if any(x is None for x in out) else out
+    numbers = [x for x in map(_number, v) if x is not None]
+    return numbers if len(numbers) == n else None
+
+
+#: the topics a plot draws (their names are the kinds load_drive sorts samples by)
+PLOTTED = frozenset(t.name for t in (topics.SIM_TRUTH, topics.GNSS_FIX, topics.ESTIMATOR_STATE,
+                                     topics.STEERING_STATE, topics.PILOT_PATH, topics.PILOT_STATE))
 
 
 def _kind(key: str, schema: str) -> str:
-    """What a sample is, by schema name or else by key (viena/<car>/<service>/...)."""
-    for kind in ("sim.truth", "gnss.fix", "estimator.state", "steering.state", "pilot.path", "pilot.state"):
-        if schema.startswith(f"viena.{kind}/"):
-            return kind
-    parts = key.split("/")
-    tail = "/".join(parts[2:])
-    if tail in ("pilot/path", "pilot/state"):
-        return tail.replace("/", ".")
-    if tail == "sim/truth":
-        return "sim.truth"
-    if tail == "estimator/state":
-        return "estimator.state"
-    if tail == "steering/state":
-        return "steering.state"
-    if len(parts) == 5 and parts[2] == "gnss" and parts[4] == "fix":
-        return "gnss.fix"
-    return ""
+    """What a sample is: the topic its schema travels on, or else the topic of its key
+    (viena/<car>/...); "" for one not plotted."""
+    topic = topics.BY_SCHEMA.get(schema) or topics.RETIRED.get(schema)
+    if topic is None:
+        parts = key.split("/", 2)
+        found = topics.topic_of(parts[2]) if len(parts) == 3 else None
+        topic = None if found is None else found[0]
+    return topic.name if topic is not None and topic.name in PLOTTED else ""
 
 
 def load_drive(recording: Recording) -> Drive:
     """Two passes: the first finds the drive's start and the map's origin, the second
     gathers the series (positions as ECEF, turned into map coordinates in one go)."""
     drive = Drive()
-    first_fix = first_checkpoint = None
+    first_fix: tuple[float, float, float] | None = None
+    first_checkpoint: tuple[float, float, float] | None = None
     for msg in recording.messages():
         kind = _kind(msg.key, msg.schema)
         if not kind:
@@ -156,13 +155,13 @@ def load_drive(recording: Recording) -> Drive:
                 or (kind == "estimator.state" and drive.origin is None)):
             origin = _vec(_decoded(msg).get("origin"), 3)
             if origin:
-                drive.origin = tuple(origin)
+                drive.origin = (origin[0], origin[1], origin[2])
                 drive.origin_source = "simulator origin" if kind == "sim.truth" else "estimator origin"
         elif kind == "gnss.fix" and first_fix is None:
             s = _decoded(msg)
-            geo = [_number(s.get(k)) for k in ("lat_deg", "lon_deg", "height_m")]
-            if _valid_fix(s) and None not in geo:
-                first_fix = tuple(geo)
+            geo = _vec([s.get(k) for k in ("lat_deg", "lon_deg", "height_m")], 3)
+            if _valid_fix(s) and geo:
+                first_fix = (geo[0], geo[1], geo[2])
         elif kind == "pilot.path" and first_checkpoint is None:
             checkpoints = _checkpoints(_decoded(msg))
             if checkpoints:
@@ -176,7 +175,7 @@ def load_drive(recording: Recording) -> Drive:
            "pilot.path": _add_path, "pilot.state": _add_pilot}
     for msg in recording.messages():
         kind = _kind(msg.key, msg.schema)
-        if kind:
+        if kind and drive.t0 is not None:           # set by the first pass if any kind is there
             s = _decoded(msg)
             t = s["t"] if type(s.get("t")) is int else msg.publish_time
             add[kind](drive, (t - drive.t0) / 1e9, msg.key, s)
@@ -328,8 +327,8 @@ def _add_steering(drive: Drive, t: float, _key: str, s: dict) -> None:
 
 
 # -- drawing --------------------------------------------------------------------------------
-TRUTH_STYLE = dict(color="black", lw=1.2, label="truth (sim)")
-ESTIMATOR_STYLE = dict(color="tab:red", lw=1.2, label="estimator")
+TRUTH_STYLE: dict[str, Any] = dict(color="black", lw=1.2, label="truth (sim)")
+ESTIMATOR_STYLE: dict[str, Any] = dict(color="tab:red", lw=1.2, label="estimator")
 GNSS_COLOURS = ["tab:blue", "tab:green", "tab:purple", "tab:orange", "tab:cyan"]
 ROUTE_COLOUR = "#e6007e"             # magenta: no source of the track has it (Foxglove's map too)
 FOLLOWING_STYLE = dict(color="gold", lw=9, alpha=0.45, solid_capstyle="round", zorder=0.5)
@@ -356,7 +355,6 @@ def draw(drive: Drive, title: str, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import matplotlib.ticker  # noqa: F401  (yaw's axis: a tick every 90 deg)
 
     fig = plt.figure(figsize=(15, 11), dpi=100, layout="constrained")
     grid = fig.add_gridspec(4, 2, width_ratios=[1.15, 1])
@@ -369,10 +367,26 @@ def draw(drive: Drive, title: str, path: Path) -> None:
 
     yaw_ref = _yaw_reference(drive)
     _draw_routes(track, drive)
+    _draw_gnss(track, speed, yaw, drive, yaw_ref)
+    for source, style in ((drive.truth, TRUTH_STYLE), (drive.estimator, ESTIMATOR_STYLE)):
+        _draw_source(track, speed, yaw, source, style, yaw_ref)
+    _draw_steering(steer, drive)
+    _draw_sigma(sigma, drive)
+    _mark_ends(track, drive)
+    _draw_pilot(track, drive)
+    _label_axes(track, speed, yaw, steer, sigma, drive)
+    for ax in (speed, yaw, steer):
+        plt.setp(ax.get_xticklabels(), visible=False)
+    fig.savefig(path, format="png")
+    plt.close(fig)
+
+
+def _draw_gnss(track, speed, yaw, drive: Drive, yaw_ref) -> None:
+    """Each GNSS unit's points: where its antenna was (not the car's centre), its speed, its yaw."""
     for unit, colour in zip(sorted(drive.gnss), GNSS_COLOURS * 4):
         series = drive.gnss[unit]
-        style = dict(color=colour, label=f"GNSS {unit}")
-        if series["enu"].t:                   # where the antenna was, not the car's centre
+        style: dict[str, Any] = dict(color=colour, label=f"GNSS {unit}")
+        if series["enu"].t:
             _, enu = series["enu"].array()
             track.plot(enu[:, 0], enu[:, 1], ".", ms=3, alpha=0.5, color=colour,
                        label=f"GNSS {unit}: antenna positions")
@@ -381,23 +395,32 @@ def draw(drive: Drive, title: str, path: Path) -> None:
         if series["yaw"].t:
             t, deg = series["yaw"].array()
             yaw.plot(t, align_deg(t, unwrap_deg(deg), *yaw_ref), ".", ms=2, alpha=0.6, **style)
-    for source, style in ((drive.truth, TRUTH_STYLE), (drive.estimator, ESTIMATOR_STYLE)):
-        if source["enu"].t:
-            _, enu = source["enu"].array()
-            track.plot(enu[:, 0], enu[:, 1], "-", **style)
-        if source["speed"].t:
-            speed.plot(*source["speed"].array(), "-", **style)
-        if source["yaw"].t:
-            t, deg = source["yaw"].array()
-            yaw.plot(t, align_deg(t, unwrap_deg(deg), *yaw_ref), "-", **style)
-    if drive.truth["wheel"].t:
-        steer.plot(*drive.truth["wheel"].array(), "-", **TRUTH_STYLE)
-    for name, colour in zip(sorted(drive.steering), ["tab:orange", "tab:purple", "tab:olive", "tab:brown"] * 4):
-        steer.plot(*drive.steering[name].array(), "-", lw=1, color=colour, label=f"steering {name}")
-    _draw_sigma(sigma, drive)
 
-    _mark_ends(track, drive)
-    _draw_pilot(track, drive)
+
+def _draw_source(track, speed, yaw, source: dict, style: dict[str, Any], yaw_ref) -> None:
+    """The truth's or the estimator's lines: track, speed, yaw."""
+    if source["enu"].t:
+        _, enu = source["enu"].array()
+        track.plot(enu[:, 0], enu[:, 1], "-", **style)
+    if source["speed"].t:
+        speed.plot(*source["speed"].array(), "-", **style)
+    if source["yaw"].t:
+        t, deg = source["yaw"].array()
+        yaw.plot(t, align_deg(t, unwrap_deg(deg), *yaw_ref), "-", **style)
+
+
+def _draw_steering(ax, drive: Drive) -> None:
+    """The wheel angle: the truth's, and each steering's."""
+    if drive.truth["wheel"].t:
+        ax.plot(*drive.truth["wheel"].array(), "-", **TRUTH_STYLE)
+    for name, colour in zip(sorted(drive.steering), ["tab:orange", "tab:purple", "tab:olive", "tab:brown"] * 4):
+        ax.plot(*drive.steering[name].array(), "-", lw=1, color=colour, label=f"steering {name}")
+
+
+def _label_axes(track, speed, yaw, steer, sigma, drive: Drive) -> None:
+    """Titles, units, the map's origin, grids and legends ("no data" on an empty plot)."""
+    import matplotlib.ticker  # yaw's axis: a tick every 90 deg
+
     track.set_aspect("equal", adjustable="datalim")
     origin = drive.origin
     where = (f"{origin[0]:.5f}, {origin[1]:.5f}, {origin[2]:.0f} m ({drive.origin_source})"
@@ -417,10 +440,6 @@ def draw(drive: Drive, title: str, path: Path) -> None:
             ax.legend(fontsize=8, loc="best", markerscale=2.5)
         elif ax is not track:
             ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", color="0.5")
-    for ax in (speed, yaw, steer):
-        plt.setp(ax.get_xticklabels(), visible=False)
-    fig.savefig(path, format="png")
-    plt.close(fig)
 
 
 def _draw_sigma(ax, drive: Drive) -> None:
@@ -557,7 +576,7 @@ def run(args: argparse.Namespace) -> int:
               f"steering samples)", file=sys.stderr)
         return 1
     duration = 0.0
-    if recording.first_log_time is not None:
+    if recording.first_log_time is not None and recording.last_log_time is not None:
         duration = (recording.last_log_time - recording.first_log_time) / 1e9
     counts = ", ".join(f"{n} {k}" for k, n in drive.counts.items())
     if drive.invalid_fixes:

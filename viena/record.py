@@ -23,13 +23,16 @@ import socket
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from viena.common import clock
 from viena.common.recording import ReceiveClock, RecordingError, RecordingWriter, human_bytes, repair
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
 from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions, tool_logging
+
+if TYPE_CHECKING:
+    import zenoh
 
 log = logging.getLogger("viena.record")
 PROGRESS_PERIOD_S = 0.5
@@ -39,21 +42,45 @@ FLUSH_PERIOD_S = 0.5
 LOG_PERIOD_S = 10.0
 
 
+class SampleWriter(Protocol):
+    """What the recorder writes into: a recording of zenoh samples (RecordingWriter) or of
+    Foxglove channels (foxglove_export.FoxgloveWriter, `record --foxglove`)."""
+
+    part: Path
+    samples: int
+
+    @property
+    def keys(self) -> int: ...
+
+    @property
+    def size(self) -> int: ...
+
+    def write(self, key: str, encoding: str, log_time: int, data: bytes) -> None: ...
+
+    def flush(self) -> None: ...
+
+    def close(self) -> Path: ...
+
+    def abandon(self) -> None: ...
+
+    def discard(self) -> None: ...
+
+
 class Recorder:
-    """Subscribes to key expressions and writes every sample to a RecordingWriter.
+    """Subscribes to key expressions and writes every sample to a SampleWriter.
 
     `start()` declares the subscribers; `stop()` undeclares them, writes what is queued and
     closes the file. A write error stops the writing; `error` then holds it.
     """
 
-    def __init__(self, session, keyexprs: list[str], writer: RecordingWriter):
+    def __init__(self, session, keyexprs: list[str], writer: SampleWriter):
         self.session, self.keyexprs, self.writer = session, keyexprs, writer
         self.clock = ReceiveClock()
         self.error: OSError | None = None
         self.failed = clock.Event()
         self.silence = SilenceWarning("viena record", keyexprs)
         self._queue = clock.Queue()
-        self._subscribers = []
+        self._subscribers: list[zenoh.Subscriber] = []
         self._thread = clock.Thread(target=self._write_loop, name="record-writer", daemon=True)
 
     def start(self) -> None:
@@ -196,7 +223,7 @@ def _run(args: argparse.Namespace) -> int:
                     "started": datetime.fromtimestamp(clock.time(), UTC).isoformat(timespec="seconds")}
         if args.foxglove:
             from viena.foxglove_export import FoxgloveWriter  # the SDK only when asked for
-            writer = FoxgloveWriter(output, metadata=metadata)
+            writer: SampleWriter = FoxgloveWriter(output, metadata=metadata)
         else:
             writer = RecordingWriter(output, metadata=metadata)
     except OSError as exc:
@@ -219,9 +246,10 @@ def _run(args: argparse.Namespace) -> int:
     finally:
         path = recorder.stop()
         session.close()
-    if recorder.error is not None:
-        exc = recorder.error
-        raise Fail(f"cannot write {output}: {exc.strerror or exc} (after {recorder.samples} "
+    error = recorder.error
+    if error is not None or path is None:          # stop() gives no path only with an error
+        why = (error.strerror or error) if error is not None else "not completed"
+        raise Fail(f"cannot write {output}: {why} (after {recorder.samples} "
                    f"samples; what was written is in {writer.part}, not a complete recording)")
     if recorder.samples == 0:
         path.unlink(missing_ok=True)

@@ -15,7 +15,7 @@ import sys
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from viena.common import clock
 from viena.common.errors import InputError
@@ -24,6 +24,9 @@ from viena.common.recording import KeyFilter, Recorded, Recording
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
 from viena.tool import Connection, Fail, add_timeout_flag, guarded, key_expressions, tool_logging
+
+if TYPE_CHECKING:
+    import zenoh
 
 log = logging.getLogger("viena.replay")
 EARLY_S = 0.0002
@@ -56,10 +59,10 @@ class Player:
         if rate < 0:
             raise ValueError("rate must be >= 0")
         self.session, self.rate, self.car = session, rate, car
-        self._publishers: dict[tuple[str, str], object] = {}
+        self._publishers: dict[tuple[str, str], zenoh.Publisher] = {}
         self.stats = PlayStats()
 
-    def _publisher(self, key: str, encoding: str):
+    def _publisher(self, key: str, encoding: str) -> zenoh.Publisher:
         import zenoh
 
         pub = self._publishers.get((key, encoding))
@@ -72,7 +75,7 @@ class Player:
 
     def play(self, messages: Iterable[Recorded], stop: Any) -> None:
         """One pass: the first sample goes out now, every other one at its log-time offset."""
-        t0_log = t0 = None
+        t0_log, t0 = 0, None           # the first sample's log time, and when it went out
         stats = self.stats
         for msg in messages:
             key = rename_car(msg.key, self.car)

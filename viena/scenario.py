@@ -180,7 +180,8 @@ def _number(value: Any, where: _Where, name: str, positive: bool = False, at_lea
 def _vector(value: Any, where: _Where, name: str) -> tuple[float, float, float]:
     if not isinstance(value, list) or len(value) != 3:
         raise where.error(name, f"must be 3 numbers [x, y, z], got {value!r}")
-    return tuple(_number(v, where, name) for v in value)  # type: ignore[return-value]
+    x, y, z = (_number(v, where, name) for v in value)
+    return x, y, z
 
 
 def _route(value: Any, where: _Where) -> Path | None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import inspect
 import pkgutil
 import sys
 from pathlib import Path
@@ -39,7 +40,7 @@ def services() -> dict[str, type[Service]]:
 
 
 def readme_path(cls: type[Service]) -> Path:
-    return Path(sys.modules[cls.__module__].__file__).resolve().parent / "README.md"
+    return Path(inspect.getfile(cls)).resolve().parent / "README.md"
 
 
 def with_table(text: str, cls: type[Service]) -> str:

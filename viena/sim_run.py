@@ -40,21 +40,22 @@ from rich.table import Table
 
 from viena import scenario as scenarios
 from viena.common import clock
-from viena.common.health import HEALTH
 from viena.common.lockstep.scheduler import START_NS
 from viena.common.payload import parse_payload
 from viena.common.recording import RecordingWriter
+from viena.common.samples import topics
+from viena.common.samples.estimator import CHI2_2D_95
+from viena.common.samples.estimator import STATE as ESTIMATE
+from viena.common.samples.health import HEALTH
+from viena.common.samples.pilot import STATE as PILOT
+from viena.common.samples.steering import STATE as STEERING
+from viena.common.samples.truth import TRUTH
 from viena.common.schema import unpack
 from viena.lockstep_car import SIM_TOML, LockstepCar
 from viena.record import Recorder
 from viena.scenario import Event, Scenario, ScenarioError
-from viena.services.estimator.state import CHI2_2D_95
-from viena.services.estimator.state import STATE as ESTIMATE
 from viena.services.pilot.model.path import Path as RoutePath
 from viena.services.pilot.model.route import MAX_POINTS, MAX_ROUTE_BYTES, checked, parse_route
-from viena.services.pilot.model.state import STATE as PILOT
-from viena.services.sim.model.truth import TRUTH
-from viena.services.steering.model.state import STATE as STEERING
 
 #: how often the simulated person looks at the pilot and the events are checked (virtual s)
 TICK_S = 0.1
@@ -130,9 +131,9 @@ class Watch:
         keys = car.keys
         self._subs = [
             session.declare_subscriber(keys.truth, self._on_truth),
-            session.declare_subscriber(keys.key("estimator", "state"), self._on_estimate),
-            session.declare_subscriber(keys.key("pilot", "state"), self._on_pilot),
-            session.declare_subscriber(keys.key("steering", "state"), self._on_steering),
+            session.declare_subscriber(keys.of(topics.ESTIMATOR_STATE), self._on_estimate),
+            session.declare_subscriber(keys.of(topics.PILOT_STATE), self._on_pilot),
+            session.declare_subscriber(keys.of(topics.STEERING_STATE), self._on_steering),
             session.declare_subscriber(keys.health("steering"), self._on_steering_health)]
 
     def follow(self, path: Any) -> None:
@@ -262,7 +263,7 @@ class Person:
 
     def ask(self, name: str, payload: bytes) -> dict:
         """The pilot's answer on pilot/NAME, or {"status": "no answer"}."""
-        for reply in self.session.get(self.car.key("pilot", name), payload=payload, timeout=5.0):
+        for reply in self.session.get(self.car.keys.of(topics.BY_NAME[f"pilot.{name}"]), payload=payload, timeout=5.0):
             if reply.ok is not None:
                 return parse_payload(reply.ok.payload.to_bytes(), max_bytes=2 * MAX_ROUTE_BYTES)  # echoes the route
         return {"status": "no answer"}

@@ -160,7 +160,7 @@ class Reply:
 
     @property
     def result(self) -> Sample | ReplyError:
-        return self.ok if self.ok is not None else self.err  # type: ignore[return-value]
+        return self.ok if self.ok is not None else self.err  # type: ignore[return-value]  # one is always set
 
 
 TIMEOUT = Reply(None, ReplyError(zenoh.ZBytes(b"Timeout"), zenoh.Encoding.ZENOH_STRING))

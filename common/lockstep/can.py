@@ -171,7 +171,7 @@ class LockstepBus(can.BusABC):
             stop(timeout=0)          # flags it stopped, stops its listeners; nothing to join
             self._wake_parked()
 
-        notifier.stop = stop_without_waiting  # type: ignore[method-assign]
+        notifier.stop = stop_without_waiting  # type: ignore[method-assign]  # this one instance stops at once
 
     def _wake_parked(self) -> None:
         with self._parked:

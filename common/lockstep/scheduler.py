@@ -390,43 +390,20 @@ class VirtualClock:
         if late > 0:
             time.sleep(late)
 
-    # -- threads -------------------------------------------------------------------------------
+    # -- threads (their lives: VirtualThread) -----------------------------------------------------
     def _spawn(self, thread: VirtualThread) -> _Task:
+        """A task for `thread` in its creator's group (the driver's: the current group), ready
+        to run on an OS thread of its own."""
         creator = self._me()
         task = _Task(thread.name, self._group if creator is self._driver else creator.group)
         self._all.append(task)
-        real = threading.Thread(target=self._bootstrap, args=(task, thread), name=thread.name, daemon=True)
+        real = threading.Thread(target=thread._live, args=(task,), name=thread.name, daemon=True)
         real.start()
         self._ready.append(task)
         return task
 
-    def _bootstrap(self, task: _Task, thread: VirtualThread) -> None:
-        task.ident = threading.get_ident()
-        self._tasks[task.ident] = task
-        clocks.adopt(self)
-        task.go.acquire()
-        try:
-            if self._closing:
-                raise Killed()
-            thread._target(*thread._args, **thread._kwargs)
-        except Killed:
-            pass
-        except BaseException as exc:
-            self.errors.append((f"{task.group}/{task.name}", exc))
-            log.exception("simulated thread %s/%s failed", task.group, task.name)
-        finally:
-            self._exit(task, thread)
-
-    def _exit(self, task: _Task, thread: VirtualThread) -> None:
-        task.done = True
-        if task.ident is not None:
-            self._tasks.pop(task.ident, None)
-        clocks.release()
-        if self._closing:
-            if task.unwound is not None:
-                task.unwound.set()
-            return
-        thread._finished.set()
+    def _hand_on(self, task: _Task) -> None:
+        """Give the baton away for good: `task` has ended."""
         nxt = self._next(task)
         if nxt is not task:
             self.switches += 1
@@ -597,6 +574,41 @@ class VirtualThread:
         if self._task is not None:
             raise RuntimeError("threads can only be started once")
         self._task = self._clock._spawn(self)
+
+    def _live(self, task: _Task) -> None:
+        """The OS thread's whole life: wait for the baton, run the target (a failure is the
+        clock's `errors`, a `Killed` the end of the simulation), then end."""
+        clock = self._clock
+        task.ident = threading.get_ident()
+        clock._tasks[task.ident] = task
+        clocks.adopt(clock)
+        task.go.acquire()
+        try:
+            if clock._closing:
+                raise Killed()
+            self._target(*self._args, **self._kwargs)
+        except Killed:
+            pass
+        except BaseException as exc:
+            clock.errors.append((f"{task.group}/{task.name}", exc))
+            log.exception("simulated thread %s/%s failed", task.group, task.name)
+        finally:
+            self._end(task)
+
+    def _end(self, task: _Task) -> None:
+        """Done: out of the clock's threads; joiners woken and the baton handed on, unless the
+        simulation is closing (then close() waits for `unwound`)."""
+        clock = self._clock
+        task.done = True
+        if task.ident is not None:
+            clock._tasks.pop(task.ident, None)
+        clocks.release()
+        if clock._closing:
+            if task.unwound is not None:
+                task.unwound.set()
+            return
+        self._finished.set()
+        clock._hand_on(task)
 
     def is_alive(self) -> bool:
         return self._task is not None and not self._task.done and not self._task.killed

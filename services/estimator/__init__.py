@@ -2,8 +2,8 @@
 
 `Estimator` is the whole filter as a plain class (no zenoh); `service.py` runs it on zenoh.
 """
+from viena.common.samples.estimator import STATE
 from viena.services.estimator.estimator import Estimator
 from viena.services.estimator.settings import EstimatorSettings
-from viena.services.estimator.state import STATE
 
 __all__ = ["Estimator", "EstimatorSettings", "STATE"]

@@ -50,3 +50,14 @@ def forward_yaw(r) -> float:
     """Heading of the forward axis of a body -> ENU rotation (row-major 9-tuple), the
     yaw above: what the course over ground of a car driving forward measures."""
     return math.atan2(-r[1], r[4])
+
+
+def tilt_about_car(P, rot) -> list[float]:
+    """Variance of the Kalman filter's tilt (states 9, 10: about East and North) about the
+    car's forward and right axes (rad^2), the attitude being `rot` (body -> ENU, row-major)."""
+    # the forward (body y) and right (body x) axes, horizontally, in ENU
+    f = (rot[1], rot[4])
+    g = (rot[0], rot[3])
+    pee, pen, pnn = float(P[9, 9]), float(P[9, 10]), float(P[10, 10])
+    return [f[0] * f[0] * pee + 2 * f[0] * f[1] * pen + f[1] * f[1] * pnn,
+            g[0] * g[0] * pee + 2 * g[0] * g[1] * pen + g[1] * g[1] * pnn]

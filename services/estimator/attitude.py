@@ -135,10 +135,14 @@ class Attitude:
         a[4:7] = [a[4] + gx, a[5] + gy, a[6] + gz]
         if mag is not None:
             a[7:11] = [a[7] + mag[0], a[8] + mag[1], a[9] + mag[2], a[10] + 1]
-        s = self.settings
         span_s = (t - self._align_t0) * 1e-9
-        if span_s < s.align_s:
-            return
+        if span_s >= self.settings.align_s:
+            self._window_done(span_s, keep_yaw)
+
+    def _window_done(self, span_s: float, keep_yaw: bool) -> None:
+        """A window of align_s gathered: the attitude from its means, unless the car moved
+        at a speed nobody knows (then another window, for a while)."""
+        s, a = self.settings, self._align
         n = a[0]
         v0, v1 = self._align_speed
         known = self._align_known

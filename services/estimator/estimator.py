@@ -17,10 +17,13 @@ This class only wires the parts together, one idea each (docs/estimator.md#the-p
     heading.py      whether the yaw is known, and the course over ground
     standstill.py   is the car standing, and the gyro's bias while it is
     constraints.py  zero velocity and the non-holonomic pseudo-measurements
-    kalman.py       the Kalman filter: position, velocity, accelerometer bias
+    navigation.py   the half of this class that changes the filters: the IMU step, and
+                    what the GNSS side decided applied (no other part mutates them)
+    kalman.py       the Kalman filter: position, velocity, accelerometer bias (kalman_update.py)
     history.py      the last second of the trajectory, for late fixes
-    gnss_update.py  a fix into the filters: gates, lever arm, resets
-    output.py       the state sample                                    (state.py)
+    gnss_update.py  a fix into the filters: admit, measure, update, judge; it decides
+                    (gnss_gates.py, fix_measurement.py, gnss_judgement.py, gnss_course.py)
+    output.py       the state sample (schema: viena.common.samples.estimator)
 
 A filter that diverges is reset, says why and realigns; counters survive it.
 """
@@ -36,26 +39,24 @@ from viena.services.estimator.attitude import Attitude
 from viena.services.estimator.consistency import Consistency
 from viena.services.estimator.constraints import Constraints
 from viena.services.estimator.counters import Counters
-from viena.services.estimator.gnss_update import POSITION_COURSE_MAX_S, GnssUpdate
-from viena.services.estimator.heading import Heading
+from viena.services.estimator.gnss_course import POSITION_COURSE_MAX_S
+from viena.services.estimator.gnss_judgement import solution
+from viena.services.estimator.gnss_update import GnssUpdate
+from viena.services.estimator.heading import UNKNOWN_VAR, Heading
 from viena.services.estimator.history import TrajectoryHistory
 from viena.services.estimator.inputs import ImuLimits, Rejected, gnss_fix, imu_sample
 from viena.services.estimator.kalman import Diverged, KalmanNoise, NavKalman
 from viena.services.estimator.mount import MountHint
-from viena.services.estimator.output import build_state
+from viena.services.estimator.navigation import Navigation
+from viena.services.estimator.output import TIME_FLOOR_NS, StateView, build_state, mode
 from viena.services.estimator.settings import EstimatorSettings
 from viena.services.estimator.standstill import Standstill
 from viena.services.estimator.timeline import NEW_TIMELINE, NewTimeline, Timeline
 
 _G = 9.80665
-#: a step between IMU samples longer than this and the attitude aligns again
-_REALIGN_GAP_S = 2.0
-#: an alignment knows the car's speed when a GNSS velocity came this recently (ns): within a
-#: second, or a 1 Hz receiver's never would be, a fix always being up to 1 s old
-_ALIGN_SPEED_AGE_NS = 1_500_000_000
 
 
-class Estimator:
+class Estimator(Navigation):
     """Feed `add_imu(sample)` and `add_gnss(fix)`; read `state()`. Not thread-safe: one
     thread feeds it (the service's worker)."""
 
@@ -161,7 +162,7 @@ class Estimator:
         filter produced one, it resets and reports the reset state instead."""
         self._seq += 1
         try:
-            out, numbers = build_state(self, self._seq)
+            out, numbers = build_state(self._view(), self._seq)
             total = sum(numbers)
             reason = None if total - total == 0.0 else "a state value was not finite"
         except (Diverged, ValueError) as exc:
@@ -169,8 +170,27 @@ class Estimator:
         if reason is not None:
             self.reset(f"diverged: {reason}")
             self._seq += 1
-            out, _ = build_state(self, self._seq)
+            out, _ = build_state(self._view(), self._seq)
         return out
+
+    def _view(self) -> StateView:
+        """What the state sample is made of, read off the parts."""
+        kf, att, heading, gnss, timeline = self.kf, self.attitude, self.heading, self.gnss, self.timeline
+        t = timeline.t_state or TIME_FLOOR_NS
+        # [yaw, pitch (about the right axis), roll (about forward)]
+        tilt = self.tilt_var() if att.aligned else (UNKNOWN_VAR, UNKNOWN_VAR)
+        att_var = [heading.yaw_var(), tilt[1], tilt[0]]
+        doing = mode(timeline.t_state, timeline.imu_live, kf.initialized, att.aligned,
+                     gnss.gates.last_fix_t.values(), self.gnss_timeout_ns)
+        return StateView(
+            t=t, mode=doing, x=kf.x if kf.initialized else None, P=kf.P if kf.initialized else None,
+            q=att.att.q, att_var=att_var, rate=att.rate, gyro_bias=att.gyro_bias, aligned=att.aligned,
+            heading_valid=heading.valid, heading_source=heading.source, still=self.standstill.still,
+            imu_live=timeline.imu_live, gnss_live=gnss.gates.live_units(t, self.gnss_timeout_ns),
+            frame=self.frame, origin_source=self.origin_source, counters=self.counters,
+            offset_hint_s=gnss.timing.offset_s, mount_hint_deg=self.mount.hint_deg(),
+            consistency=self.consistency.report(), admission=gnss.admission.report(),
+            solution=solution(gnss.solutions, t, self.gnss_timeout_ns))
 
     @property
     def imu_live(self) -> bool:
@@ -228,116 +248,3 @@ class Estimator:
         self.frame, self.origin_source = frame, source
         self._gravity = self._noise.gravity = frame.gravity_mps2
         self.log.info("ENU origin (%s): lat %.8f lon %.8f h %.3f", source, *frame.origin)
-
-    def corrected(self, dx) -> None:
-        """The Kalman filter corrected its state by dx: the past trajectory moves with it,
-        and the tilt it found goes to the attitude."""
-        self.history.correct(dx[0:3], dx[3:6])
-        self.attitude.correct_tilt(*self.kf.take_tilt())
-
-    def tilt_sigma_rad(self) -> float:
-        """How well a fresh alignment knows roll and pitch: the setting, or what the car's
-        unknown acceleration made of it (attitude.py)."""
-        return max(math.radians(self.settings.tilt_sigma_deg), math.sqrt(max(self.attitude.tilt_var)))
-
-    def tilt_var(self) -> list[float]:
-        """Variance of the tilt about the car's forward and right axes (rad^2): the Kalman
-        filter's once it has a position, else the accelerometer's disagreement."""
-        att = self.attitude
-        if not (self.kf.initialized and att.aligned):
-            return att.tilt_var
-        P = self.kf.P
-        r = att.rot
-        # the forward (body y) and right (body x) axes, horizontally, in ENU
-        f = (r[1], r[4])
-        g = (r[0], r[3])
-        pee, pen, pnn = float(P[9, 9]), float(P[9, 10]), float(P[10, 10])
-        about = [f[0] * f[0] * pee + 2 * f[0] * f[1] * pen + f[1] * f[1] * pnn,
-                 g[0] * g[0] * pee + 2 * g[0] * g[1] * pen + g[1] * g[1] * pnn]
-        return about
-
-    # -- one IMU sample ----------------------------------------------------------------------
-    def _imu_step(self, t, dt, ax, ay, az, gx, gy, gz, mag) -> None:
-        att = self.attitude
-        if dt > self._imu_gap_s:
-            self.counters.counts["imu_gaps"] += 1
-            if dt > _REALIGN_GAP_S:
-                att.realign()
-            dt = 0.0
-        # the state's clock: after a GNSS-only spell it may be ahead of the IMU
-        dt_state = self.timeline.step_state(t)
-        b = att.gyro_bias
-        gx, gy, gz = gx - b[0], gy - b[1], gz - b[2]
-        att.rate = (gx, gy, gz)
-        self.gnss.timing.gyro(t, gz, dt)
-        kf = self.kf
-        kx = kf.x
-        fx, fy, fz = ax - kx[6], ay - kx[7], az - kx[8]
-        speed_still = None
-        if kf.initialized:
-            # GNSS (lately) and the filter both put the speed below still_speed_mps
-            g, v = self.gnss, self._still_mps
-            speed_still = (g.speed_t is not None and g.speed < v and t - g.speed_t < self.gnss_timeout_ns
-                           and kx[3] * kx[3] + kx[4] * kx[4] < v * v)
-        standstill = self.standstill
-        standstill.update(dt, gx, gy, gz, fx, fy, fz, att.rot, self._gravity, speed_still, att,
-                          self.gnss.doppler.span(t))
-        heading = self.heading
-        history = self.history
-        if mag is not None:
-            self._mag = mag
-
-        if not att.aligned:
-            speed, known = 0.0, False
-            if kf.initialized:
-                speed = math.hypot(kx[3], kx[4])
-                # a GNSS velocity came within the last fix or so (the filter's own variance
-                # grows fast while nothing drives it during an alignment)
-                speed_t = self.gnss.speed_t
-                known = speed_t is not None and 0 <= t - speed_t < _ALIGN_SPEED_AGE_NS
-            att.gather(t, fx, fy, fz, gx, gy, gz, mag, heading.filter.valid, speed, known,
-                       standstill.gnss_moving)
-            if kf.initialized:
-                if dt_state > 0.0:
-                    kf.move(0.0, 0.0, 0.0, dt_state)
-                if att.aligned:             # a new attitude: the filter's tilt starts again
-                    kf.retilt(self.tilt_sigma_rad())
-                history.append(t, kf.x, att.yaw)
-            return
-
-        r = att.rot
-        forward_mps: float | None = None
-        if kf.initialized and heading.valid:
-            forward_mps = r[1] * kx[3] + r[4] * kx[4] + r[7] * kx[5]     # along the car's forward axis
-        speed_t = self.gnss.speed_t
-        aided = speed_t is not None and t - speed_t < 1_000_000_000
-        att.update(dt, fx, fy, fz, gx, gy, gz, mag, forward_mps, aided, standstill.still)
-        if dt > 0.0:
-            heading.filter.pending_s += dt
-        if not kf.initialized:
-            return
-        r = att.rot
-        if dt_state > self._imu_gap_s:
-            kf.move(0.0, 0.0, 0.0, dt_state)
-        elif heading.valid:
-            ae = r[0] * fx + r[1] * fy + r[2] * fz
-            an = r[3] * fx + r[4] * fy + r[5] * fz
-            au = r[6] * fx + r[7] * fy + r[8] * fz - self._gravity
-            self.accel_enu = (ae, an, au)
-            kf.move(ae, an, au, dt_state, r)
-        else:
-            # yaw unknown: the horizontal acceleration cannot be put in ENU; let GNSS lead
-            au = r[6] * fx + r[7] * fy + r[8] * fz - self._gravity
-            kf.move(0.0, 0.0, au, dt_state, r, vertical=True)
-        c = self.constraints
-        if t >= c.next_t:
-            c.next_t = t + c.interval_ns
-            att.tilt_residual(c.interval_ns * 1e-9)
-            if aided and att.beta_aided == 0.0 and self._mag is not None and att.use_mag \
-                    and att.mag_plausible(self._mag, fx, fy, fz):
-                heading.magnetometer(self._mag, history)
-            if t - c.last_t >= c.interval_ns:
-                dx = c.apply_alone(kf, att, heading, standstill.still, self.tilt_var()[1])
-                if dx is not None:
-                    self.corrected(dx)
-        history.append(t, kf.x, att.yaw)

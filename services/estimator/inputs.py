@@ -15,9 +15,9 @@ import math
 from dataclasses import dataclass
 
 from viena.common.geodesy import plausible_ecef
+from viena.common.samples.fix import Fix, read_fix
+from viena.common.samples.imu import ImuSample, read_sample
 from viena.common.schema import FieldError
-from viena.services.gnss.model.fix import Fix, read_fix
-from viena.services.imu.model.sample import ImuSample, read_sample
 
 STANDARD_GRAVITY = 9.80665
 

@@ -16,20 +16,20 @@ from dataclasses import dataclass
 
 from viena.common import clock
 from viena.common.errors import ConfigError, InputError
+from viena.common.samples import topics
 from viena.common.schema import unpack
 from viena.common.service import Service, run_service
 from viena.common.settings import part, setting
 from viena.services.estimator.estimator import Estimator
 from viena.services.estimator.settings import EstimatorSettings
-from viena.services.estimator.state import STATE
 
 
 @dataclass(frozen=True)
 class EstimatorServiceSettings:
     """[estimator]: where the samples come from, and the estimator's own settings."""
-    imu_key: str = setting("imu/*/sample", "IMU samples, key relative to `viena/<car>/`; one unit is used",
+    imu_key: str = setting(topics.IMU_SAMPLE.key(), "IMU samples, key relative to `viena/<car>/`; one unit is used",
                            metavar="KEYEXPR")
-    gnss_key: str = setting("gnss/*/fix", "GNSS fixes, key relative to `viena/<car>/`; one or more receivers",
+    gnss_key: str = setting(topics.GNSS_FIX.key(), "GNSS fixes, key relative to `viena/<car>/`; one or more receivers",
                             metavar="KEYEXPR")
     queue_size: int = setting(2000, "samples waiting for the worker (~10 s of input)")
     estimator: EstimatorSettings = part(EstimatorSettings, "the filters (estimator.py, also offline)")
@@ -48,7 +48,7 @@ class EstimatorService(Service):
         except ValueError as exc:
             raise ConfigError(f"[estimator]: {exc}") from None
         self._queue = clock.Queue(maxsize=max(10, s.queue_size))
-        self.state_pub = self.publisher(self.keys.key("estimator", "state"), STATE)
+        self.state_pub = self.publisher(topics.ESTIMATOR_STATE)
         imu_key, gnss_key = self.keys.key(s.imu_key), self.keys.key(s.gnss_key)
         self.declare_subscriber(imu_key, lambda sample: self._enqueue("imu", sample))
         self.declare_subscriber(gnss_key, lambda sample: self._enqueue("gnss", sample))

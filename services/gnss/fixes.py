@@ -8,14 +8,16 @@ Kept out of the model so that reading a fix loads no driver (tests/test_import_p
 from __future__ import annotations
 
 import math
+from typing import cast
 
+import numpy as np
 import pymap3d
 
 from viena.common.geodesy import geodetic_of_ecef
+from viena.common.samples.fix import is_no_fix
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns, utc_to_gps
 from viena.services.gnss.driver.nmea import NmeaFix
 from viena.services.gnss.driver.novatel import BestPos, BestVel, BestXyz, LogMessage, MessageId, TimeStatus
-from viena.services.gnss.model.fix import enu_sigma_to_ecef, enu_to_ecef_velocity, is_no_fix
 
 WGS84 = pymap3d.Ellipsoid.from_name("wgs84")
 #: Below this the header's GPS time is not a time (the receiver counts from week 0).
@@ -37,7 +39,7 @@ def _times(header, t_host_ns: int) -> dict:
 
 def fix_from_bestxyz(msg: LogMessage, unit: str, seq: int) -> dict:
     """A fix from one BESTXYZ log, fields as the receiver sent them."""
-    d: BestXyz = msg.data
+    d = cast(BestXyz, msg.data)
     x, y, z = (float(v) for v in d.position_m)
     lat, lon, h = geodetic_of_ecef(x, y, z)
     sample = {
@@ -61,7 +63,7 @@ def fix_from_bestxyz(msg: LogMessage, unit: str, seq: int) -> dict:
 
 def fix_from_bestpos(pos: LogMessage, vel: LogMessage | None, unit: str, seq: int) -> dict:
     """A fix from BESTPOS, with the same epoch's BESTVEL when there is one."""
-    p: BestPos = pos.data
+    p = cast(BestPos, pos.data)
     lat, lon, h = float(p.lat_deg), float(p.lon_deg), float(p.height_m)
     x, y, z = pymap3d.geodetic2ecef(lat, lon, h, WGS84)
     sample = {
@@ -78,7 +80,7 @@ def fix_from_bestpos(pos: LogMessage, vel: LogMessage | None, unit: str, seq: in
         "base_id": p.station_id or None, "vel_sigma_mps": None,
     }
     if vel is not None:
-        v: BestVel = vel.data
+        v = cast(BestVel, vel.data)
         track = math.radians(v.track_deg)
         enu = (v.hor_speed_mps * math.sin(track), v.hor_speed_mps * math.cos(track),
                v.vert_speed_mps)
@@ -187,3 +189,20 @@ def fix_from_nmea(fix: NmeaFix, unit: str, seq: int, uere_m: float = 3.0) -> dic
     sample.update(t=fix.utc_ns, gps_week=week, gps_ms=ms, t_host=fix.t_host_ns,
                   latency_s=(fix.t_host_ns - fix.utc_ns) / 1e9)
     return sample
+
+
+def enu_sigma_to_ecef(sigma_enu, lat_deg: float, lon_deg: float) -> list[float]:
+    """Standard deviations along ECEF axes of independent E, N, U errors."""
+    lat, lon = math.radians(lat_deg), math.radians(lon_deg)
+    sl, cl, sp, cp = math.sin(lon), math.cos(lon), math.sin(lat), math.cos(lat)
+    r = np.array([[-sl, -sp * cl, cp * cl],        # columns: E, N, U in ECEF
+                  [cl, -sp * sl, cp * sl],
+                  [0.0, cp, sp]])
+    cov = r @ np.diag(np.square(sigma_enu)) @ r.T
+    return [float(v) for v in np.sqrt(np.diag(cov))]
+
+
+def enu_to_ecef_velocity(vel_enu, lat_deg: float, lon_deg: float) -> list[float]:
+    u, v, w = pymap3d.enu2uvw(*vel_enu, lat_deg, lon_deg)
+    return [float(u), float(v), float(w)]
+

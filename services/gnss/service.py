@@ -32,6 +32,9 @@ from viena.common import clock
 from viena.common.errors import ConfigError, SampleError
 from viena.common.log import Throttled
 from viena.common.rtcm3 import family
+from viena.common.samples import topics
+from viena.common.samples.corrections import CORRECTIONS, read_corrections
+from viena.common.samples.fix import solution_kind
 from viena.common.service import Service, run_service
 from viena.common.settings import setting
 from viena.common.silence import SilenceWatch
@@ -55,11 +58,9 @@ from viena.services.gnss.driver.novatel import (
 from viena.services.gnss.driver.novatel.corrections import FORMATS, RTCM3_DECODED
 from viena.services.gnss.driver.novatel.enums import DgpsType
 from viena.services.gnss.driver.novatel.feed import DROP_REASONS, CorrectionsFeed, Taken, line_bytes_per_s
-from viena.services.gnss.driver.novatel.receiver import CorrectionsSetup
+from viena.services.gnss.driver.novatel.startup import CorrectionsSetup
 from viena.services.gnss.driver.novatel.writer import CorrectionsWriter, SecondPort
 from viena.services.gnss.fixes import NovatelFixBuilder, fix_from_nmea
-from viena.services.gnss.model.fix import FIX, solution_kind
-from viena.services.ntrip.model.corrections import CORRECTIONS, read_corrections
 
 USAGE = __doc__
 LOGGED = ("BESTXYZ", "BESTPOS", "BESTVEL")
@@ -491,6 +492,7 @@ class GnssService(Service):
 
     name = "gnss"
     default_unit = "gnss0"
+    unit: str                       # never None: the default_unit stands in for a missing --unit
     settings_class = GnssSettings
     description = USAGE
 
@@ -530,7 +532,7 @@ class GnssService(Service):
     # -- life ------------------------------------------------------------------------
     def start(self) -> None:
         s = self.settings
-        self.fix_pub = self.publisher(self.keys.key("gnss", self.unit, "fix"), FIX)
+        self.fix_pub = self.publisher(topics.GNSS_FIX, unit=self.unit)
         self.source = (NmeaSource if s.protocol == "nmea" else NovatelSource)(self)
         self.health.set("protocol", self.source.protocol)
         if isinstance(self.source, NovatelSource) and self.source.corrections is not None:
@@ -539,7 +541,7 @@ class GnssService(Service):
                                  "reset relies on the far end treating a new connection as a break "
                                  "(the NovAtel twin does, ser2net does not)", s.port)
             self.source.corrections.start()
-            self.declare_subscriber(self.keys.key("gnss", "corrections"), self.source.corrections.on_sample)
+            self.declare_subscriber(self.keys.of(topics.GNSS_CORRECTIONS), self.source.corrections.on_sample)
         self.supervisor = DeviceSupervisor(
             self.source, self.health, self.silence, url=s.port,
             backoff=Backoff(FIRST_RETRY_S, s.reconnect_max_s), tick_s=WATCH_PERIOD_S,

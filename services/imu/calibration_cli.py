@@ -36,6 +36,7 @@ from viena.services.imu.recordings import (
     PARKED,
     Recording,
     from_readings,
+    joined,
     load_parked,
     load_recording,
     save_recording,
@@ -292,10 +293,7 @@ def gather(args) -> Recording:
         raise ConfigError("give recordings, or --port URL, or --live (exactly one)")
     seconds = args.seconds or DEFAULT_SECONDS[args.command]
     if args.recordings:
-        recs = [load_recording(p) for p in args.recordings]
-        return Recording(*(np.concatenate([getattr(r, f) for r in recs])
-                           for f in ("t_host_ns", "board_id", "accel_g", "gyro_dps", "mag_counts",
-                                     "euler_deg")), name="+".join(r.name for r in recs))
+        return joined([load_recording(p) for p in args.recordings])
     rec = from_port(args, seconds) if args.port else from_zenoh(args, seconds)
     if not len(rec):
         raise FitError("no frames arrived")
@@ -322,12 +320,14 @@ def from_port(args, seconds: float) -> Recording:
 
 def from_zenoh(args, seconds: float) -> Recording:
     from viena.common.keys import Keys
+    from viena.common.samples.imu import SAMPLE
+    from viena.common.samples.topics import IMU_SAMPLE
     from viena.common.session import car_name, load_settings_file, open_session, zenoh_config
-    from viena.services.imu.model.sample import SAMPLE
 
     toml = load_settings_file(args)
-    key = Keys(car_name(args, toml)).key("imu", args.unit, "sample")
-    rows, lock, bad = [], threading.Lock(), [0]
+    key = Keys(car_name(args, toml)).of(IMU_SAMPLE, unit=args.unit)
+    rows: list[tuple] = []
+    lock, bad = threading.Lock(), [0]
 
     def on_sample(s) -> None:
         try:
@@ -351,6 +351,9 @@ def from_zenoh(args, seconds: float) -> Recording:
     if bad[0]:
         print(f"{bad[0]} malformed samples ignored", file=sys.stderr)
     with lock:
-        cols = list(zip(*rows)) if rows else [[]] * 6
-    return Recording(np.array(cols[0], np.int64), np.array(cols[1], int),
-                     *(np.array(c, float).reshape(-1, 3) for c in cols[2:]), name=key)
+        taken = list(rows)
+
+    def col(k: int) -> np.ndarray:
+        return np.array([row[k] for row in taken], float).reshape(-1, 3)
+    return Recording(np.array([row[0] for row in taken], np.int64), np.array([row[1] for row in taken], int),
+                     col(2), col(3), col(4), col(5), name=key)

@@ -83,6 +83,14 @@ def load_parked(name: str) -> Recording:
     return load_recording(parked_path(name))
 
 
+def joined(recordings: list[Recording]) -> Recording:
+    """Several recordings as one, in the order given (their names joined by +)."""
+    def col(name: str) -> np.ndarray:
+        return np.concatenate([getattr(r, name) for r in recordings])
+    return Recording(col("t_host_ns"), col("board_id"), col("accel_g"), col("gyro_dps"), col("mag_counts"),
+                     col("euler_deg"), "+".join(r.name for r in recordings))
+
+
 def from_readings(readings: Iterable[Reading], name: str = "") -> Recording:
     readings = list(readings)
     def col(get):

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from viena.common import clock
 from viena.common.errors import ConfigError
+from viena.common.samples.topics import IMU_SAMPLE
 from viena.common.service import Service, run_service
 from viena.common.settings import setting
 from viena.common.silence import SilenceWatch
@@ -22,7 +23,7 @@ from viena.services.imu.calibration_file import DEFAULT_FILE, load_calibration
 from viena.services.imu.driver import DRIVERS, RazorAhrs, SerialImu
 from viena.services.imu.model.calibration import FIRMWARES, SampleCalibrator
 from viena.services.imu.model.glitch import MagGlitchFilter
-from viena.services.imu.model.sample import SAMPLE, SampleBuilder
+from viena.services.imu.model.sample_builder import SampleBuilder
 
 #: decoder counters reported as health errors, by their name in the driver's stats
 #: (out_of_range and unconfirmed: candidate frames refused although their CRC checked)
@@ -90,6 +91,8 @@ class ImuService(Service):
 
     name = "imu"
     default_unit = "razor0"
+    #: never None: default_unit names one when --unit does not
+    unit: str
     settings_class = ImuSettings
 
     def start(self) -> None:
@@ -103,7 +106,7 @@ class ImuService(Service):
         self.builder = SampleBuilder(self.unit, s.firmware, SampleCalibrator(calibration),
                                      MagGlitchFilter(field_T=s.mag_field_nT * 1e-9))
         self.driver = self._make_driver()
-        self.sample_pub = self.publisher(self.keys.key("imu", self.unit, "sample"), SAMPLE)
+        self.sample_pub = self.publisher(IMU_SAMPLE, unit=self.unit)
         self.health.set("firmware", s.firmware)
         self.health.set("calibration", calibration.source)
         self._last_seq: int | None = None

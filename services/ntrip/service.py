@@ -33,18 +33,18 @@ import zenoh
 
 from viena.common import clock
 from viena.common.errors import ConfigError, SampleError
+from viena.common.samples import topics
+from viena.common.samples.corrections import FORMATS, corrections_sample
+from viena.common.samples.fix import FIX, solution_kind
 from viena.common.schema import unpack
 from viena.common.service import Service, run_service
 from viena.common.settings import setting
-from viena.services.gnss.model.fix import FIX, solution_kind
 from viena.services.ntrip.driver.caster import CasterAddress
 from viena.services.ntrip.driver.client import ClientConfig, NtripClient
 from viena.services.ntrip.driver.credentials import CredentialsError, default_path, read_credentials
 from viena.services.ntrip.driver.protocol import Position
 from viena.services.ntrip.driver.retry import MIN_INTERVAL_S, RetryPolicy
 from viena.services.ntrip.driver.rtcm3 import Batch
-from viena.services.ntrip.model.corrections import CORRECTIONS, FORMATS, corrections_sample
-from viena.services.ntrip.model.state import STATE
 
 USAGE = __doc__
 STATE_PERIOD_S = 1.0
@@ -148,12 +148,12 @@ class NtripService(Service):
     # -- life ----------------------------------------------------------------------------------
     def start(self) -> None:
         s = self.settings
-        self.corrections_pub = self.publisher(self.keys.key("gnss", "corrections"), CORRECTIONS)
-        self.state_pub = self.publisher(self.keys.key("ntrip", "state"), STATE)
+        self.corrections_pub = self.publisher(topics.GNSS_CORRECTIONS)
+        self.state_pub = self.publisher(topics.NTRIP_STATE)
         self._fixes = None
         if s.gga_interval_s > 0:
             self._fixes = self.declare_subscriber(
-                self.keys.key("gnss", "*", "fix"), zenoh.handlers.RingChannel(1))
+                self.keys.of(topics.GNSS_FIX), zenoh.handlers.RingChannel(1))
         for kind in ERROR_KINDS:
             self.health.error(kind, 0)
         self.health.set("caster", self.address.source)

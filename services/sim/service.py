@@ -11,12 +11,13 @@ from dataclasses import dataclass
 
 from viena.common import clock
 from viena.common.errors import SampleError
+from viena.common.samples import topics
+from viena.common.samples.steering import STATE as STEERING_STATE
 from viena.common.service import Service, run_service
 from viena.common.settings import part, setting
 from viena.services.sim.devices import start_devices
 from viena.services.sim.model.car import CarParams, SimCar
-from viena.services.sim.model.truth import IST_ORIGIN, TRUTH, truth_sample
-from viena.services.steering.model.state import STATE as STEERING_STATE
+from viena.services.sim.model.truth import IST_ORIGIN, truth_sample
 from viena.services.steering.simulator import PersonAtTheWheel
 
 
@@ -42,12 +43,12 @@ class SimService(Service):
     def start(self) -> None:
         s = self.settings
         self.car = SimCar(s.car, origin=s.origin)
-        self._truth_pub = self.publisher(self.keys.truth, TRUTH)
+        self._truth_pub = self.publisher(topics.SIM_TRUTH)
         self.devices = start_devices(self, self.car)
         wheels = [d.twin for d in self.devices if hasattr(getattr(d, "twin", None), "ask_for_sweep")]
         if wheels:
             self._person = PersonAtTheWheel(wheels)
-            self.declare_subscriber(self.keys.key("steering", "state"), self._on_steering_state)
+            self.declare_subscriber(self.keys.of(topics.STEERING_STATE), self._on_steering_state)
         self._thread = clock.Thread(target=self._loop, name="sim-car", daemon=True)
         self._thread.start()
 

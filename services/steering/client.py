@@ -19,11 +19,14 @@ import os
 import sys
 import threading
 import weakref
+from typing import Any
 
 from viena.common import clock
+from viena.common.keys import Keys
+from viena.common.samples import topics
+from viena.common.session import zenoh_options
 from viena.services.steering.model.signing import signed_setpoint
 
-KEY = "viena/{car}/steering/{name}"
 #: the router lets one query per client and command key through in this long (the query
 #: limits of compose/zenoh/router.json5, with a margin): a query sent sooner is dropped
 #: there and never answered, so `ask` waits out the rest first
@@ -72,7 +75,7 @@ class SteeringClient:
         self.lease: str | None = None
         self.replier: str | None = None        # the steering service that granted the lease
         self.last_replier: str | None = None
-        self._setpoint_pub = None              # for put_setpoint, declared on first use
+        self._setpoint_pub: Any = None         # for put_setpoint, declared on first use (a zenoh Publisher)
 
     def ask(self, name: str, payload: dict, timeout_s: float | None = None) -> dict:
         """One command, answered by exactly one steering service; `timeout_s` for this one
@@ -84,7 +87,7 @@ class SteeringClient:
         if wait > 0:
             clock.sleep(wait)
         self._asked[name] = clock.monotonic()
-        replies = list(self.session.get(KEY.format(car=self.car, name=name),
+        replies = list(self.session.get(Keys(self.car).of(topics.BY_NAME[f"steering.{name}"]),
                                         payload=json.dumps(payload).encode(),
                                         timeout=self.timeout_s if timeout_s is None else timeout_s,
                                         target=zenoh.QueryTarget.ALL,
@@ -127,7 +130,7 @@ class SteeringClient:
         import zenoh
 
         if self._setpoint_pub is None:
-            self._setpoint_pub = self.session.declare_publisher(KEY.format(car=self.car, name="setpoint"))
+            self._setpoint_pub = self.session.declare_publisher(Keys(self.car).of(topics.STEERING_SETPOINT))
         self._setpoint_pub.put(msgpack.packb(self.signed(angle_deg)),
                                encoding=zenoh.Encoding("application/msgpack"))
 
@@ -157,17 +160,8 @@ class SteeringClient:
         return reply
 
 
-def main(argv=None) -> int:
-    from viena.common.errors import InputError
-    from viena.common.log import setup_logging
-    from viena.common.session import (
-        Unreachable,
-        add_common_arguments,
-        car_name,
-        load_settings_file,
-        open_session,
-        zenoh_config,
-    )
+def _parser() -> argparse.ArgumentParser:
+    from viena.common.session import add_common_arguments
 
     p = argparse.ArgumentParser(prog="viena-steer", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -182,7 +176,15 @@ def main(argv=None) -> int:
     p.add_argument("--timeout", type=float, default=10.0,
                    help="give up if the router cannot be reached in this many seconds (default 10)")
     add_common_arguments(p)
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    from viena.common.errors import InputError
+    from viena.common.log import setup_logging
+    from viena.common.session import Unreachable, car_name, load_settings_file, open_session, zenoh_config
+
+    args = _parser().parse_args(argv)
     if args.sign is not None:
         print(json.dumps(signed_setpoint(args.sign, args.angle_deg, seq=next_seq(),
                                          t_ns=clock.time_ns() if args.stamp else None)))
@@ -214,7 +216,8 @@ def main(argv=None) -> int:
             print(json.dumps(client.disarm()))
     except ConflictingReplies as exc:
         print(f"viena-steer: stopped: {exc}", file=sys.stderr)
-        session.put(KEY.format(car=car, name="estop"), json.dumps({"by": identity}).encode())   # puts too
+        session.put(Keys(car).of(topics.STEERING_ESTOP), json.dumps({"by": identity}).encode(),   # puts too
+                    **zenoh_options(topics.STEERING_ESTOP))
         return 3
     finally:
         session.close()

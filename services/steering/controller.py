@@ -152,7 +152,10 @@ class SteeringController:
 
     def estop(self, payload=None) -> dict:
         """Quick stop now, whoever asks and whatever they send (a `by` in it is logged); disarms."""
-        return self._decide(parse_request("estop", payload), None)
+        answer = self._decide(parse_request("estop", payload), None)
+        if answer is None:                       # only an arm answers later
+            raise RuntimeError("an estop gave no answer")
+        return answer
 
     def _decide(self, request: Request, reply: ReplyFn | None) -> dict | None:
         token = object()
@@ -207,7 +210,7 @@ class SteeringController:
                 self._next_state = max(self._next_state + 1.0 / self.settings.state_rate_hz,
                                        now - self.drive.settings.sync_period_s)
         self._deliver()
-        if publish:
+        if publish and self.on_state is not None:
             try:
                 self.on_state(self.state())
             except Exception:
@@ -325,11 +328,10 @@ class SteeringController:
     def _deliver(self) -> None:
         with self._lock:
             answers, self._answers = self._answers, []
-        for reply, answer in answers:
-            _call(reply, answer)
-        # Drop our references now: a zenoh query is answered for good (its final reply
-        # sent) only when the last reference to it goes.
-        answers = reply = None
+        # Each popped, so no reference stays here: a zenoh query is answered for good (its
+        # final reply sent) only when the last reference to it goes.
+        while answers:
+            _call(*answers.pop(0))
 
 
 def _call(reply: ReplyFn, answer: dict) -> None:

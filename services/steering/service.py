@@ -33,18 +33,18 @@ import zenoh
 from viena.common.errors import InputError, PayloadError
 from viena.common.log import Throttled
 from viena.common.payload import parse_payload
+from viena.common.samples import topics
+from viena.common.samples.estimator import STATE as ESTIMATOR_STATE
+from viena.common.samples.fix import FIX
 from viena.common.schema import unpack
 from viena.common.service import Service, query_payload, reply_to, run_service
 from viena.common.settings import part
-from viena.services.estimator.state import STATE as ESTIMATOR_STATE
-from viena.services.gnss.model.fix import FIX
 from viena.services.steering.controller import ControllerSettings, SteeringController
 from viena.services.steering.driver import DriveSettings, EposDrive
 from viena.services.steering.model.calibration import CalibrationSettings
 from viena.services.steering.model.lateral import LateralSettings
 from viena.services.steering.model.safety import REJECTED, Envelope, SafetySettings
 from viena.services.steering.model.speed import SpeedSettings
-from viena.services.steering.model.state import STATE
 
 
 @dataclass(frozen=True)
@@ -75,18 +75,18 @@ class SteeringService(Service):
         if self.log.getEffectiveLevel() > logging.DEBUG:
             logging.getLogger("canopen").setLevel(logging.WARNING)   # one line per PDO otherwise
         drive = EposDrive(s.drive)
-        self._state_pub = self.publisher(self.keys.key("steering", "state"), STATE)
+        self._state_pub = self.publisher(topics.STEERING_STATE)
         envelope = Envelope(s.envelope, s.lateral, s.speed)
         self.controller = SteeringController(drive, envelope, s.calibration, s.controller, on_state=self._publish_state)
-        key = lambda name: self.keys.key("steering", name)        # noqa: E731
-        for name in ("arm", "setpoint", "calibration"):
-            self.declare_queryable(key(name), self._command(name, key(name)))
-        self.declare_queryable(key("estop"), self._estop_query)
-        self.declare_subscriber(key("setpoint"), self._setpoint_put)
-        self.declare_subscriber(key("estop"), self._estop_put)
+        for topic in (topics.STEERING_ARM, topics.STEERING_SETPOINT, topics.STEERING_CALIBRATION):
+            name = topic.name.removeprefix("steering.")
+            self.declare_queryable(self.keys.of(topic), self._command(name, self.keys.of(topic)))
+        self.declare_queryable(self.keys.of(topics.STEERING_ESTOP), self._estop_query)
+        self.declare_subscriber(self.keys.of(topics.STEERING_SETPOINT), self._setpoint_put)
+        self.declare_subscriber(self.keys.of(topics.STEERING_ESTOP), self._estop_put)
         # the car's speed, for the envelope (model/speed.py): whom the router lets publish these
-        self.declare_subscriber(self.keys.key("estimator", "state"), self._speed_input(speed_of_state))
-        self.declare_subscriber(self.keys.key("gnss", "*", "fix"), self._speed_input(speed_of_fix))
+        self.declare_subscriber(self.keys.of(topics.ESTIMATOR_STATE), self._speed_input(speed_of_state))
+        self.declare_subscriber(self.keys.of(topics.GNSS_FIX), self._speed_input(speed_of_fix))
         self.controller.start()
 
     def stop(self) -> None:
@@ -128,7 +128,7 @@ class SteeringService(Service):
 
     def _estop_query(self, query: zenoh.Query) -> None:
         data, encoding = query_payload(query)
-        own = self.keys.key("steering", "estop")
+        own = self.keys.of(topics.STEERING_ESTOP)
         if str(query.key_expr) != own:
             self.health.count("discovery_queries")
             reply_to(query, describe("estop", own), encoding, data, own)

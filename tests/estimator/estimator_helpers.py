@@ -8,9 +8,9 @@ import numpy as np
 
 from benchmarks.simdrive import Drive, DriveSamples
 from viena.common.rotation import wrap_angle
+from viena.common.samples.estimator import STATE
 from viena.services.estimator.angles import yaw_pitch_roll
 from viena.services.estimator.estimator import Estimator
-from viena.services.estimator.state import STATE
 
 
 @dataclass

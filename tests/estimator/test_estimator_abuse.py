@@ -21,9 +21,9 @@ from estimator_helpers import generate, settings_for
 
 from benchmarks.simdrive import Drive, DriveSamples
 from viena.common.rotation import wrap_angle
+from viena.common.samples.estimator import STATE
 from viena.services.estimator.angles import yaw_pitch_roll
 from viena.services.estimator.estimator import Estimator
-from viena.services.estimator.state import STATE
 
 DRIVE = Drive(duration_s=25.0, seed=11)
 AHEAD_NS = 1_900_000_000            # inside max_future_s = 2 s
@@ -198,6 +198,6 @@ def test_an_attitude_gone_wrong_is_aligned_again_when_gnss_disagrees():
 
 
 def test_the_monitor_names_the_source_of_bad_stamps():
-    from viena.services.estimator.state import monitor_view
+    from viena.common.samples.estimator import monitor_view
     assert "refused for time" not in monitor_view({"time_refused": {}})
     assert monitor_view({"time_refused": {"razor0": 157}})["refused for time"] == "razor0 157"

@@ -9,9 +9,9 @@ import pytest
 from estimator_helpers import generate, run, settings_for
 
 from benchmarks.simdrive import at_speed
+from viena.common.samples.estimator import STATE
 from viena.services.estimator.consistency import Consistency
 from viena.services.estimator.mount import MountHint
-from viena.services.estimator.state import STATE
 
 pytestmark = pytest.mark.slow        # 90 s simulated drives through the filter
 

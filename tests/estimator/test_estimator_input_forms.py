@@ -13,10 +13,10 @@ from estimator_helpers import generate, settings_for
 
 from benchmarks.simdrive import Drive
 from viena.common.rotation import wrap_angle
+from viena.common.samples.fix import read_fix
 from viena.services.estimator.angles import yaw_pitch_roll
 from viena.services.estimator.estimator import Estimator
 from viena.services.estimator.standstill import ACCEL_FLOOR_MPS2, GYRO_FLOOR_RADPS
-from viena.services.gnss.model.fix import read_fix
 
 DRIVE = Drive(duration_s=25.0, seed=11)
 

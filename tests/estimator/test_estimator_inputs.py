@@ -12,8 +12,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from benchmarks.simdrive import Drive
+from viena.common.samples.estimator import STATE
 from viena.services.estimator.estimator import Estimator
-from viena.services.estimator.state import STATE
 
 DRIVE = Drive(duration_s=25.0, seed=11)
 

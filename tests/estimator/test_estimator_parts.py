@@ -9,7 +9,8 @@ import pytest
 
 from viena.services.estimator.heading import UNKNOWN_VAR, HeadingFilter
 from viena.services.estimator.history import TrajectoryHistory
-from viena.services.estimator.kalman import Diverged, NavKalman, inverse_small
+from viena.services.estimator.kalman import Diverged, NavKalman
+from viena.services.estimator.kalman_update import inverse_small
 
 
 def test_inverse_small_matches_numpy_and_refuses_what_is_not_a_covariance():

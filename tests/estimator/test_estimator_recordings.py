@@ -15,8 +15,8 @@ import pymap3d
 import pytest
 from estimator_recordings import IMU_PARKED, gnss_drive_fixes, razor_parked_samples
 
+from viena.common.samples.estimator import STATE
 from viena.services.estimator.estimator import Estimator
-from viena.services.estimator.state import STATE
 
 
 @pytest.mark.parametrize("path", IMU_PARKED, ids=lambda p: p.stem)

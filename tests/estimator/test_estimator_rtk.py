@@ -20,12 +20,12 @@ import pytest
 from benchmarks.simdrive import Drive, DriveSamples
 from tests.estimator.estimator_helpers import settings_for
 from viena.common.geodesy import LocalFrame
+from viena.common.samples.estimator import STATE, monitor_view
+from viena.common.samples.fix import read_fix
 from viena.services.estimator.admission import Admission
 from viena.services.estimator.estimator import Estimator
 from viena.services.estimator.gnss_noise import WhiteShare, carrier_share
 from viena.services.estimator.kalman import NavKalman
-from viena.services.estimator.state import STATE, monitor_view
-from viena.services.gnss.model.fix import read_fix
 
 T0 = 1_717_236_000_000_000_000
 

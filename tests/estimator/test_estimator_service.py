@@ -14,10 +14,10 @@ from estimator_helpers import generate
 from vienatest import wait_for_subscriber, wait_until
 
 from benchmarks.simdrive import Drive
-from viena.common.health import HEALTH
-from viena.services.estimator.state import STATE
-from viena.services.gnss.model.fix import FIX
-from viena.services.imu.model.sample import SAMPLE
+from viena.common.samples.estimator import STATE
+from viena.common.samples.fix import FIX
+from viena.common.samples.health import HEALTH
+from viena.common.samples.imu import SAMPLE
 
 pytestmark = pytest.mark.slow  # the service as a process
 

@@ -17,9 +17,9 @@ from estimator_helpers import generate, settings_for
 
 from benchmarks.estimator import nees_h, states_of
 from benchmarks.simdrive import Drive
+from viena.common.samples.estimator import CHI2_2D_95, STATE
 from viena.services.estimator.gnss_noise import WhiteShare
 from viena.services.estimator.kalman import KalmanNoise, NavKalman
-from viena.services.estimator.state import CHI2_2D_95, STATE
 
 pytestmark = pytest.mark.slow  # simulated drives through the filter
 

@@ -11,8 +11,8 @@ import pymap3d
 from laptop_helpers import TRUTH_KEY, write_drive
 
 from viena.common.recording import Recording, RecordingWriter
+from viena.common.samples.pilot import PATH, STATE, path_sample
 from viena.services.pilot.model.route import parse_route
-from viena.services.pilot.model.state import PATH, STATE, path_sample
 
 PATH_KEY = "viena/elettra/pilot/path"
 STATE_KEY = "viena/elettra/pilot/state"

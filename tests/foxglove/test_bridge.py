@@ -14,9 +14,9 @@ from foxglove_client import FoxgloveClient, decoder
 from vienatest import Processes, free_port, open_session, start_router, wait_for_line, wait_for_subscriber
 
 from viena.common.paths import compose_dir
+from viena.common.samples.fix import FIX
+from viena.common.samples.truth import TRUTH
 from viena.foxglove import QUEUE_SAMPLES
-from viena.services.gnss.model.fix import FIX
-from viena.services.sim.model.truth import TRUTH
 
 pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=12)]  # the whole simulated car, as processes
 CAR = "foxtest"

@@ -96,10 +96,11 @@ def test_a_recorder_writes_a_foxglove_file_live(session, tmp_path):
     """`viena record --foxglove`: the recorder, given a FoxgloveWriter for its writer."""
     from vienatest import wait_until
 
+    from viena.common.samples.truth import TRUTH
     from viena.foxglove_export import FoxgloveWriter
     from viena.record import Recorder
     from viena.services.sim.model.car import SimCar
-    from viena.services.sim.model.truth import TRUTH, truth_sample
+    from viena.services.sim.model.truth import truth_sample
 
     writer = FoxgloveWriter(tmp_path / "live.mcap", metadata={"car": "elettra"})
     recorder = Recorder(session, ["viena/elettra/**"], writer)

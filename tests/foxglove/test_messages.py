@@ -9,12 +9,13 @@ import pymap3d
 import pytest
 from foxglove_client import protobuf_decoder
 
-from viena.common.health import HEALTH
+from viena.common.samples.estimator import STATE
+from viena.common.samples.fix import FIX
+from viena.common.samples.health import HEALTH
+from viena.common.samples.truth import TRUTH
 from viena.foxglove_messages import Converter, json_bytes
-from viena.services.estimator.state import STATE
-from viena.services.gnss.model.fix import FIX
 from viena.services.sim.model.car import SimCar
-from viena.services.sim.model.truth import TRUTH, truth_sample
+from viena.services.sim.model.truth import truth_sample
 
 T0 = 1_717_236_000_123_456_789
 

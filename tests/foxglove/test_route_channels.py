@@ -14,11 +14,11 @@ from foxglove_client import FoxgloveClient, as_advertised, decoder, protobuf_dec
 from laptop_helpers import TRUTH_KEY, viena, write_drive
 from pilot_drive import PATH_KEY, checkpoints_of, geojson_route, write_pilot_drive
 
+from viena.common.samples.estimator import STATE
+from viena.common.samples.pilot import PATH, path_sample
 from viena.foxglove_messages import MAX_CHECKPOINT_MARKS, Converter
-from viena.services.estimator.state import STATE
 from viena.services.pilot.model.path import Path as PilotPath
 from viena.services.pilot.model.route import parse_route
-from viena.services.pilot.model.state import PATH, path_sample
 
 T0 = 1_717_236_000_123_456_789
 ROUTE_TOPIC = "viena/elettra/foxglove/pilot/route"

@@ -16,10 +16,10 @@ from laptop_helpers import viena
 from viena.common.display import CORRECTIONS_STALE_S
 from viena.common.json_schema import json_schema
 from viena.common.recording import RecordingWriter
+from viena.common.samples.corrections import CORRECTIONS, corrections_sample
+from viena.common.samples.fix import FIX
+from viena.common.samples.ntrip import STATE
 from viena.foxglove_messages import GNSS_STATUS, NTRIP_STATUS, Converter
-from viena.services.gnss.model.fix import FIX
-from viena.services.ntrip.model.corrections import CORRECTIONS, corrections_sample
-from viena.services.ntrip.model.state import STATE
 
 T0 = 1_717_236_000_123_456_789
 FIX_KEY = "viena/elettra/gnss/gnss0/fix"

@@ -91,7 +91,7 @@ def health_until(session, car, predicate, timeout=15.0, unit: str = "gnss0"):
     """A unit's health samples until one satisfies predicate; that one (or the last seen)."""
     from vienatest import collect
 
-    from viena.common.health import HEALTH
+    from viena.common.samples.health import HEALTH
     end = time.monotonic() + timeout
     last = None
     while time.monotonic() < end:

@@ -7,9 +7,9 @@ import operator
 
 import pytest
 
+from viena.common.samples.fix import FIX, monitor_view, read_fix
 from viena.services.gnss.driver.nmea import NmeaDecoder
 from viena.services.gnss.fixes import fix_from_nmea
-from viena.services.gnss.model.fix import FIX, monitor_view, read_fix
 
 
 def sentence(body: str) -> bytes:

@@ -25,7 +25,7 @@ from viena.services.gnss.driver.novatel import (
     StartupConfig,
 )
 from viena.services.gnss.driver.novatel.enums import MessageId
-from viena.services.gnss.driver.novatel.receiver import CorrectionsSetup
+from viena.services.gnss.driver.novatel.startup import CorrectionsSetup
 from viena.services.gnss.simulator import NovatelTwin
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(60)]  # receiver and twin talk in real time

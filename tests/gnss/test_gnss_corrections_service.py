@@ -14,12 +14,12 @@ from vienatest import collect
 
 from viena.common.errors import ConfigError
 from viena.common.rtcm3 import Rtcm3Framer as Rtcm3Splitter
+from viena.common.samples.corrections import CORRECTIONS, corrections_sample
+from viena.common.samples.fix import FIX
 from viena.common.service import build_parser
 from viena.common.twin.serial_port import SerialEndpoint
-from viena.services.gnss.model.fix import FIX
 from viena.services.gnss.service import GnssService, ReceiverCorrections
 from viena.services.gnss.simulator import NovatelTwin
-from viena.services.ntrip.model.corrections import CORRECTIONS, corrections_sample
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(90)]  # the service as a process
 DIFFERENTIAL = ("PSRDIFF", "NARROW_FLOAT", "NARROW_INT")

@@ -13,7 +13,7 @@ from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.gnss.driver.novatel import NovatelReceiver, StartupConfig
 from viena.services.gnss.driver.novatel.corrections import RTCM3_DECODED
 from viena.services.gnss.driver.novatel.feed import CorrectionsFeed, line_bytes_per_s
-from viena.services.gnss.driver.novatel.receiver import CorrectionsSetup
+from viena.services.gnss.driver.novatel.startup import CorrectionsSetup
 from viena.services.gnss.simulator import NovatelTwin
 from viena.services.sim.model.truth import IST_ORIGIN
 

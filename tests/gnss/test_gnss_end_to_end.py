@@ -11,8 +11,8 @@ import pytest
 from vienatest import collect, free_port
 
 from viena.common.rotation import quat_to_matrix
-from viena.services.gnss.model.fix import FIX
-from viena.services.sim.model.truth import TRUTH
+from viena.common.samples.fix import FIX
+from viena.common.samples.truth import TRUTH
 
 pytestmark = pytest.mark.slow  # the sim and two services as processes
 

@@ -6,6 +6,7 @@ import math
 import pytest
 
 from viena.common.errors import SampleError
+from viena.common.samples.fix import FIX
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns
 from viena.services.gnss.driver.nmea import NmeaFix
 from viena.services.gnss.driver.novatel import (
@@ -18,7 +19,6 @@ from viena.services.gnss.driver.novatel import (
     SolutionStatus,
 )
 from viena.services.gnss.fixes import NovatelFixBuilder, fix_from_bestxyz, fix_from_nmea
-from viena.services.gnss.model.fix import FIX
 
 WEEK, MS = 1899, 296_450_300
 T_HOST = gps_to_utc_ns(WEEK, MS) + 30_000_000

@@ -199,7 +199,7 @@ def test_every_log_round_trips_through_a_frame(data, week, ms):
 
 
 def test_body_sizes_are_the_manuals():
-    assert (BestXyz._BODY.size, BestPos._BODY.size, BestVel._BODY.size) == (112, 72, 44)
+    assert (BestXyz.CODEC.size, BestPos.CODEC.size, BestVel.CODEC.size) == (112, 72, 44)
 
 
 def test_statuses_and_types_have_their_manual_names():

@@ -6,6 +6,7 @@ import math
 
 import pytest
 
+from viena.common.samples.fix import FIX, Fix, read_fix
 from viena.common.schema import FieldError
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns
 from viena.services.gnss.driver.nmea import NmeaFix
@@ -19,7 +20,6 @@ from viena.services.gnss.driver.novatel import (
     SolutionStatus,
 )
 from viena.services.gnss.fixes import fix_from_bestpos, fix_from_bestxyz, fix_from_nmea
-from viena.services.gnss.model.fix import FIX, Fix, read_fix
 
 WEEK, MS = 1899, 296_450_300
 T = gps_to_utc_ns(WEEK, MS)

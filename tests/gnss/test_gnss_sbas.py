@@ -12,7 +12,7 @@ import pytest
 from gnss_helpers import TwinHarness, still
 from vienatest import collect, wait_until
 
-from viena.common.health import HEALTH
+from viena.common.samples.health import HEALTH
 from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.gnss.driver.novatel import (
     AsciiFrame,

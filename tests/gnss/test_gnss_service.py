@@ -12,8 +12,8 @@ import pytest
 from gnss_helpers import ORIGIN_ECEF, health_until, still
 from vienatest import collect
 
+from viena.common.samples.fix import FIX
 from viena.common.twin.serial_port import SerialEndpoint, TwinWrapper
-from viena.services.gnss.model.fix import FIX
 from viena.services.gnss.simulator import NmeaTwin, NovatelTwin
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(90)]  # the service as a process

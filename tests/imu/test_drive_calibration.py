@@ -22,7 +22,8 @@ import pytest
 
 from benchmarks.simdrive import Drive, DriveSamples
 from viena.common.recording import RecordingWriter
-from viena.services.gnss.model.fix import FIX
+from viena.common.samples.fix import FIX
+from viena.common.samples.imu import SAMPLE
 from viena.services.imu import drive_calibration
 from viena.services.imu.calibration_cli import main as calibrate
 from viena.services.imu.calibration_file import load_calibration
@@ -30,7 +31,6 @@ from viena.services.imu.model.calibration import seed_calibration
 from viena.services.imu.model.fitting import FitError, block_weights
 from viena.services.imu.model.motion import gnss_motion
 from viena.services.imu.model.mount import Mount, Stop, facing_both_ways, levelling, wahba
-from viena.services.imu.model.sample import SAMPLE
 from viena.services.imu.simulator import RazorBoard
 from viena.services.sim.model.car import CarParams
 

@@ -5,11 +5,12 @@ import threading
 
 import pytest
 
+from viena.common.samples.imu import SAMPLE
 from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.imu.calibration_cli import main
 from viena.services.imu.driver import Frame, Reading
 from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
-from viena.services.imu.model.sample import SAMPLE, SampleBuilder
+from viena.services.imu.model.sample_builder import SampleBuilder
 from viena.services.imu.recordings import load_recording
 from viena.services.imu.simulator import NO_ERRORS, RazorAhrsTwin, RazorBoard, RazorReplayTwin, RazorTwin, make_twin
 from viena.services.imu.simulator.scenarios import fixed_truth

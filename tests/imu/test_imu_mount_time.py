@@ -17,13 +17,13 @@ from benchmarks.imu import LEVER_ARM_M
 from benchmarks.imu import mounted_drive as drive
 from benchmarks.simdrive import Drive, DriveSamples
 from viena.common.recording import RecordingWriter
-from viena.services.gnss.model.fix import FIX
+from viena.common.samples.fix import FIX
+from viena.common.samples.imu import SAMPLE
 from viena.services.imu.calibration_cli import main as calibrate
 from viena.services.imu.calibration_file import load_calibration
 from viena.services.imu.driver import Frame, Reading
 from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
 from viena.services.imu.model.mount import Mount
-from viena.services.imu.model.sample import SAMPLE
 from viena.services.imu.simulator import RazorBoard
 
 pytestmark = pytest.mark.slow

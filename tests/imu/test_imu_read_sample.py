@@ -6,10 +6,11 @@ import math
 
 import pytest
 
+from viena.common.samples.imu import SAMPLE, ImuSample, read_sample
 from viena.common.schema import FieldError
 from viena.services.imu.driver import Frame, Reading
 from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
-from viena.services.imu.model.sample import SAMPLE, ImuSample, SampleBuilder, read_sample
+from viena.services.imu.model.sample_builder import SampleBuilder
 
 T = 1_800_000_000_000_000_000
 

@@ -6,11 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from viena.common.samples.imu import SAMPLE
 from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.imu.driver import Frame, Razor, Reading
 from viena.services.imu.model.calibration import SampleCalibrator, seed_calibration
 from viena.services.imu.model.glitch import MagGlitchFilter
-from viena.services.imu.model.sample import SAMPLE, SampleBuilder
+from viena.services.imu.model.sample_builder import SampleBuilder
 from viena.services.imu.recordings import PARKED, load_parked
 from viena.services.imu.simulator import BANNER, RazorReplayTwin
 from viena.services.imu.simulator.scenarios import Script, record_twin

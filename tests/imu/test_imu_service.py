@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from vienatest import wait_until
 
-from viena.common.health import HEALTH
+from viena.common.samples.health import HEALTH
+from viena.common.samples.imu import SAMPLE
 from viena.common.twin.serial_port import SerialEndpoint
 from viena.services.imu.driver import encode_frame
-from viena.services.imu.model.sample import SAMPLE
 from viena.services.imu.simulator import NO_ERRORS, RazorAhrsTwin, RazorBoard, RazorTwin
 from viena.services.imu.simulator.scenarios import fixed_truth
 

@@ -121,10 +121,10 @@ def pilot_state(x_m: float = 0.5, y_m: float = 12.0, yaw_deg: float = 0.0,
     north of the sim's origin (a checkpoint every 10 m) from the car at (x_m, y_m) ENU,
     facing yaw_deg (CCW from north), one setpoint sent; stopped for `stop_reason` if given."""
     from viena.common.geodesy import LocalFrame
+    from viena.common.samples.pilot import STATE as PILOT_STATE
     from viena.services.pilot.model.estimate import Estimate
     from viena.services.pilot.model.pilot import Pilot
     from viena.services.pilot.model.route import checked
-    from viena.services.pilot.model.state import STATE as PILOT_STATE
     from viena.services.sim.model.truth import IST_ORIGIN
 
     t0 = 1_717_236_000_000_000_000

@@ -12,22 +12,24 @@ from laptop_helpers import pilot_state
 
 import viena.monitor
 from viena.common.display import Alert
-from viena.common.health import HEALTH, Health, HealthReport
-from viena.common.health import monitor_view as health_view
+from viena.common.health import Health
+from viena.common.samples.estimator import STATE as ESTIMATOR_STATE
+from viena.common.samples.estimator import monitor_view as estimator_view
+from viena.common.samples.fix import FIX
+from viena.common.samples.fix import monitor_view as gnss_view
+from viena.common.samples.health import HEALTH, HealthReport
+from viena.common.samples.health import monitor_view as health_view
+from viena.common.samples.imu import SAMPLE
+from viena.common.samples.imu import monitor_view as imu_view
+from viena.common.samples.pilot import STATE as PILOT_STATE
+from viena.common.samples.pilot import monitor_view as pilot_view
+from viena.common.samples.steering import STATE as STEERING_STATE
+from viena.common.samples.steering import monitor_view as steering_view
+from viena.common.samples.truth import TRUTH
+from viena.common.samples.truth import monitor_view as truth_view
 from viena.services.estimator import Estimator
-from viena.services.estimator.state import STATE as ESTIMATOR_STATE
-from viena.services.estimator.state import monitor_view as estimator_view
-from viena.services.gnss.model.fix import FIX
-from viena.services.gnss.model.fix import monitor_view as gnss_view
-from viena.services.imu.model.sample import SAMPLE
-from viena.services.imu.model.sample import monitor_view as imu_view
-from viena.services.pilot.model.state import STATE as PILOT_STATE
-from viena.services.pilot.model.state import monitor_view as pilot_view
 from viena.services.sim.model.car import SimCar
-from viena.services.sim.model.truth import TRUTH, truth_sample
-from viena.services.sim.model.truth import monitor_view as truth_view
-from viena.services.steering.model.state import STATE as STEERING_STATE
-from viena.services.steering.model.state import monitor_view as steering_view
+from viena.services.sim.model.truth import truth_sample
 
 VIEWS = [(FIX, gnss_view), (SAMPLE, imu_view), (STEERING_STATE, steering_view),
          (ESTIMATOR_STATE, estimator_view), (PILOT_STATE, pilot_view), (TRUTH, truth_view),

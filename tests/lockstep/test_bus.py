@@ -405,7 +405,7 @@ def test_the_steering_client_talks_to_one_steering_and_sees_a_second(bus):
 
 
 def test_a_service_serves_on_the_bus_with_its_token_and_health(bus):
-    from viena.common.health import HEALTH
+    from viena.common.samples.health import HEALTH
     from viena.common.service import Service, build_parser
 
     class Toy(Service):

@@ -12,15 +12,15 @@ import pymap3d
 import pytest
 
 from viena.common import clock
-from viena.common.health import HEALTH
 from viena.common.rotation import quat_to_matrix
+from viena.common.samples.estimator import STATE
+from viena.common.samples.fix import FIX
+from viena.common.samples.health import HEALTH
+from viena.common.samples.imu import SAMPLE as IMU_SAMPLE
+from viena.common.samples.steering import STATE as STEERING
+from viena.common.samples.truth import TRUTH
 from viena.lockstep_car import LockstepCar, profile_programs
-from viena.services.estimator.state import STATE
-from viena.services.gnss.model.fix import FIX
-from viena.services.imu.model.sample import SAMPLE as IMU_SAMPLE
-from viena.services.sim.model.truth import TRUTH
 from viena.services.steering.client import SteeringClient
-from viena.services.steering.model.state import STATE as STEERING
 
 LEVER_ARMS = {"gnss0": (-0.5, 1.0, 1.5), "gnss1": (0.5, 1.0, 1.5)}
 

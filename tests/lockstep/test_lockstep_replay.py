@@ -8,10 +8,10 @@ from __future__ import annotations
 
 from viena.common import clock
 from viena.common.recording import KeyFilter, Recording, RecordingWriter
+from viena.common.samples.estimator import STATE
 from viena.lockstep_car import LockstepCar
 from viena.record import Recorder
 from viena.replay import Player
-from viena.services.estimator.state import STATE
 
 SENSORS = ["viena/elettra/imu/**", "viena/elettra/gnss/*/fix"]
 STATE_KEY = "viena/elettra/estimator/state"

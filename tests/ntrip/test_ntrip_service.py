@@ -14,10 +14,10 @@ import pytest
 import zenoh
 from vienatest import PYTHON, collect, collect_until, free_port, wait_until
 
-from viena.common.health import HEALTH
-from viena.services.gnss.model.fix import FIX
-from viena.services.ntrip.model.corrections import CORRECTIONS, read_corrections
-from viena.services.ntrip.model.state import STATE, read_state
+from viena.common.samples.corrections import CORRECTIONS, read_corrections
+from viena.common.samples.fix import FIX
+from viena.common.samples.health import HEALTH
+from viena.common.samples.ntrip import STATE, read_state
 from viena.services.ntrip.service import ERROR_KINDS
 from viena.services.ntrip.simulator.caster import CasterTwin, Mountpoint
 from viena.services.ntrip.simulator.timebase import Timebase

@@ -9,10 +9,10 @@ from dataclasses import replace
 import pytest
 
 from viena.common.geodesy import LocalFrame
+from viena.common.samples.pilot import STATE
 from viena.services.pilot.model.estimate import Estimate, estimate_of
 from viena.services.pilot.model.pilot import Pilot, PilotSettings
 from viena.services.pilot.model.route import RouteError, checked
-from viena.services.pilot.model.state import STATE
 from viena.services.sim.model.truth import IST_ORIGIN
 
 T0 = 1_700_000_000_000_000_000

@@ -117,7 +117,7 @@ def test_a_start_sent_before_an_estop_is_refused_after_it(pilot):
     query = FakeQuery(b"start")
     start = Request("cmd", "start", query, (None, b"start"), pilot.inbox.number())
     pilot._on_estop(None)
-    pilot._start(start)
+    pilot.commands._start(start)
     assert query.replies == [{"status": "rejected", "reason": "an estop came after this start", "mode": "idle"}]
 
 

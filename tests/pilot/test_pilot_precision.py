@@ -8,12 +8,12 @@ import pytest
 from tests.pilot.test_pilot_core import T0, est, straight_north
 from viena.common.display import Alert
 from viena.common.errors import ConfigError
+from viena.common.samples.fix import SOLUTION_KINDS, solution_rank
+from viena.common.samples.pilot import STATE, monitor_view
 from viena.common.settings import from_mapping
-from viena.services.gnss.model.fix import SOLUTION_KINDS, solution_rank
 from viena.services.pilot.model.estimate import estimate_of
 from viena.services.pilot.model.pilot import Pilot, PilotSettings
 from viena.services.pilot.model.precision import Precision, PrecisionSettings
-from viena.services.pilot.model.state import STATE, monitor_view
 from viena.services.pilot.service import PilotServiceSettings
 
 MS = 1_000_000

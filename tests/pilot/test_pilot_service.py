@@ -27,12 +27,12 @@ from vienatest import (
 
 from viena.common.geodesy import LocalFrame
 from viena.common.payload import is_json_text
+from viena.common.samples.pilot import PATH
+from viena.common.samples.pilot import STATE as PILOT_STATE
+from viena.common.samples.steering import STATE as STEERING_STATE
 from viena.services.pilot.model.route import checked
 from viena.services.pilot.model.sim_loop import loop_route
-from viena.services.pilot.model.state import PATH
-from viena.services.pilot.model.state import STATE as PILOT_STATE
 from viena.services.sim.model.truth import IST_ORIGIN
-from viena.services.steering.model.state import STATE as STEERING_STATE
 
 pytestmark = [pytest.mark.slow,  # processes: a pilot and a steering, with watchdogs, a route flood among
               pytest.mark.car(seconds=45)]    # them: in the car lane, not beside another car

@@ -19,12 +19,12 @@ import zenoh
 from vienatest import Hijacker, collect, collect_until, wait_for_port, wait_for_subscriber, wait_until
 
 from viena.common.config import load_zenoh_config
-from viena.common.health import HEALTH
+from viena.common.samples.estimator import STATE
+from viena.common.samples.fix import FIX
+from viena.common.samples.health import HEALTH
+from viena.common.samples.steering import STATE as STEERING
 from viena.common.secure import secure_client
-from viena.services.estimator.state import STATE
-from viena.services.gnss.model.fix import FIX
 from viena.services.steering.client import SteeringClient
-from viena.services.steering.model.state import STATE as STEERING
 
 pytestmark = [pytest.mark.slow, pytest.mark.car(seconds=5)]  # the whole secured profile
 

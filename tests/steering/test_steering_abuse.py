@@ -139,7 +139,7 @@ def test_after_a_restart_the_service_says_why_the_drive_is_in_fault(service, ses
     procs.python("-m", "viena.services.steering.service", "--connect", router, "--config",
                  tmp_path / "steering.toml", "--interface", "slcan", "--channel", twin.url,
                  "--log-level", "WARNING")
-    from viena.services.steering.model.state import STATE
+    from viena.common.samples.steering import STATE
     assert wait_until(lambda: states and "Life Guard" in (STATE.decode(states[-1])["fault"] or ""), 20.0), \
         STATE.decode(states[-1]) if states else "no state"
     sub.undeclare()

@@ -162,7 +162,7 @@ def test_calibration_requests(steering):
 
 
 def test_states_are_complete_and_keep_coming(steering):
-    from viena.services.steering.model.state import STATE
+    from viena.common.samples.steering import STATE
     n = len(steering.states)
     steering.run(0.3)
     fresh = steering.states[n:]

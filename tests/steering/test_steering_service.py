@@ -12,9 +12,9 @@ import msgpack
 import pytest
 from vienatest import fast_sweeping_twin, signed, steering_on, wait_until
 
+from viena.common.samples.steering import STATE
 from viena.services.steering.driver import ds402
 from viena.services.steering.driver.emcy import LIFE_GUARD_ERROR
-from viena.services.steering.model.state import STATE
 
 pytestmark = pytest.mark.slow  # the service as a process
 

@@ -18,12 +18,12 @@ import threading
 import pytest
 
 from viena.common import clock
+from viena.common.samples.estimator import STATE as ESTIMATE
+from viena.common.samples.steering import STATE as STEERING
+from viena.common.samples.truth import TRUTH
 from viena.lockstep_car import LockstepCar
-from viena.services.estimator.state import STATE as ESTIMATE
-from viena.services.sim.model.truth import TRUTH
 from viena.services.steering.client import SteeringClient
 from viena.services.steering.model.lateral import LateralSettings, lateral_accel_mps2
-from viena.services.steering.model.state import STATE as STEERING
 
 pytestmark = pytest.mark.slow            # a minute and more of the whole car, in seconds of CPU
 

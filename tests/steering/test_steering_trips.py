@@ -54,6 +54,29 @@ def test_the_ds402_words_are_canopens():
                                            State402.CW_OPERATION_ENABLED)
 
 
+def test_the_twins_transitions_are_canopens():
+    """Every transition canopen's State402 commands reaches, by its controlword, the state
+    canopen expects in the twin's table; the table has no transition canopen lacks but the
+    EPOS's own shortcuts (ready -> enabled, ready/switched on -> disabled by a quick stop)."""
+    for (start, end), cw in State402.TRANSITIONTABLE.items():
+        if start in ("START", ds402.NOT_READY, ds402.FAULT_REACTION):    # automatic ones
+            continue
+        previous = 0 if cw & ds402.CW_FAULT_RESET else ds402.CW_ENABLE_OPERATION
+        assert ds402.next_state(start, ds402.command_of(cw, previous)) == end, (start, end, hex(cw))
+    canopens = {(start, end) for start, end in State402.TRANSITIONTABLE}
+    shortcuts = {(ds402.READY, ds402.OPERATION_ENABLED), (ds402.READY, ds402.SWITCH_ON_DISABLED),
+                 (ds402.SWITCHED_ON, ds402.SWITCH_ON_DISABLED)}
+    ours = {(start, end) for moves in ds402.TRANSITIONS.values() for start, end in moves.items()}
+    assert ours - canopens <= shortcuts
+
+
+def test_a_fault_reset_acts_on_the_edge_only():
+    assert ds402.command_of(ds402.CW_FAULT_RESET, 0) == ds402.FAULT_RESET
+    assert ds402.command_of(ds402.CW_FAULT_RESET | ds402.CW_ENABLE_OPERATION, ds402.CW_FAULT_RESET) is None
+    assert ds402.next_state(ds402.FAULT, ds402.command_of(ds402.CW_SHUTDOWN)) == ds402.FAULT
+    assert ds402.next_state(ds402.FAULT_REACTION, ds402.command_of(0)) == ds402.FAULT_REACTION
+
+
 @pytest.mark.parametrize("module", sorted(p.stem for p in MODEL.glob("*.py") if p.stem != "__init__"))
 def test_a_model_module_loads_no_io_stack(module):
     """Imported alone, in a fresh interpreter."""

@@ -138,6 +138,11 @@ class SerialImu:
             self._pending.append(Reading(self.clock.stamp(arrival, step), t_host_ns, self._seq, frame))
 
     # -- for subclasses ------------------------------------------------------------------
+    @property
+    def stats(self) -> object:
+        """The decoder's counters, as attributes by name (the service reports them as health)."""
+        raise NotImplementedError
+
     def _start_stream(self) -> None:
         """Whatever the firmware needs after the port opens."""
 

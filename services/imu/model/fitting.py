@@ -64,8 +64,8 @@ def still_segments(values: np.ndarray, window: int, max_std: float, min_len: int
     var = (csq[window:] - csq[:-window]) / window - mean ** 2
     quiet = np.all(var <= max_std ** 2, axis=1)          # window starting at i is quiet
     still = np.zeros(n, bool)
-    for i in np.flatnonzero(quiet):
-        still[i:i + window] = True
+    for first in np.flatnonzero(quiet):
+        still[first:first + window] = True
     segments, start = [], None
     for i, s in enumerate(np.append(still, False)):
         if s and start is None:

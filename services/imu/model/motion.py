@@ -31,7 +31,7 @@ import numpy as np
 
 from viena.common.errors import SampleError
 from viena.common.geodesy import LocalFrame
-from viena.services.gnss.model.fix import read_fix
+from viena.common.samples.fix import read_fix
 
 #: below this speed the course says nothing about where the car points
 MOVING_MPS = 2.0

@@ -82,7 +82,7 @@ class Mount:
         y = math.asin(max(-1.0, min(1.0, -float(r[2, 0]))))
         z = math.atan2(float(r[1, 0]), float(r[0, 0]))
         x = math.atan2(float(r[2, 1]), float(r[2, 2]))
-        return cls(tuple(round(math.degrees(a), 4) for a in (z, y, x)))
+        return cls((round(math.degrees(z), 4), round(math.degrees(y), 4), round(math.degrees(x), 4)))
 
     def angle_to_deg(self, other: Mount) -> float:
         """The angle of the rotation between two mounts: how far apart they are."""

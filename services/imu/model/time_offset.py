@@ -165,6 +165,14 @@ def estimate_time_offset(t_s: np.ndarray, accel: np.ndarray, gyro: np.ndarray, m
     if max(matches.values()) < MIN_MATCH:
         raise ValueError(_no_match(matches))
 
+    sigma = _uncertainty(fine, shifts, best, motion, float(np.median(np.diff(t_s))))
+    return TimeOffsetEstimate(offset, sigma, max(matches.values()), driving_s, motion.fix_interval_s,
+                              runner[0], runner[1], {k: round(v, 3) for k, v in matches.items()})
+
+
+def _uncertainty(fine: list, shifts: np.ndarray, best: int, motion: GnssMotion, period_s: float) -> float:
+    """The fine search's offset's sigma: a block bootstrap over the drive, widened by what no
+    drive shows (where in its period `period_s` an IMU's sample belongs)."""
     # per-interval misfits with each channel's fit held at the best shift: the bootstrap's
     # rows, each channel in units of its noise, drawn by the same blocks of the drive
     draws, blocks = block_weights([motion.t_s[ch.i] for ch in fine], BLOCK_S)
@@ -174,12 +182,9 @@ def estimate_time_offset(t_s: np.ndarray, accel: np.ndarray, gyro: np.ndarray, m
         per, _ = ch.misfit(shifts, fit=fit[0])
         replicas += draw @ (per / (m.sum() / len(m)))
     found = np.array([_parabola_min(shifts, r, int(np.argmin(r))) for r in replicas])
-    # plus what no drive shows: where in its period an IMU's sample belongs (its mean over
-    # the period, or a filtered value at its end), uniform over one period
-    period = float(np.median(np.diff(t_s)))
-    sigma = float(np.hypot(bootstrap_sigma(found, blocks), period / np.sqrt(12.0)))
-    return TimeOffsetEstimate(offset, sigma, max(matches.values()), driving_s, motion.fix_interval_s,
-                              runner[0], runner[1], {k: round(v, 3) for k, v in matches.items()})
+    # plus where in its period an IMU's sample belongs (its mean over the period, or a
+    # filtered value at its end), uniform over one period
+    return float(np.hypot(bootstrap_sigma(found, blocks), period_s / np.sqrt(12.0)))
 
 
 def _combined(chans: list, shifts: np.ndarray) -> tuple[np.ndarray, dict]:

@@ -17,7 +17,7 @@ recordings cannot tell, the assumptions listed in docs/sensors.md#imu-error-mode
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -75,13 +75,23 @@ def _car_noise():
 CAR_GYRO_NOISE_DPS, CAR_ACCEL_NOISE_LSB = _car_noise()
 
 
+def _car_figure(sensor: str, *terms: str) -> tuple:
+    """The first of `terms` the default calibration's noise table gives for `sensor` (the
+    table ships with the code: one missing is a broken install, not a board without it)."""
+    noise = seed_calibration("viena").noise
+    for term in terms:
+        value = noise_figure(noise, sensor, term)
+        if value is not None:
+            return value
+    raise ValueError(f"the default calibration's noise table gives no {' or '.join(terms)} for the {sensor}")
+
+
 def _triad(sensor: str, turn_on: tuple, scale: float, misalignment_rad: float, zero_at_start: bool) -> TriadErrors:
     """The car's bias instability: measured where the recordings show a floor, else their
     bound (the pessimistic end); rate random walk: measured, else the one that meets the
     floor at RRW_CROSSING_S (an assumption)."""
-    noise = seed_calibration("viena").noise
-    b = noise_figure(noise, sensor, "bias_instability") or noise_figure(noise, sensor, "bias_instability_at_most")
-    k = noise_figure(noise, sensor, "rate_random_walk")
+    b = _car_figure(sensor, "bias_instability", "bias_instability_at_most")
+    k = noise_figure(seed_calibration("viena").noise, sensor, "rate_random_walk")
     if k is None:
         k = tuple(0.664 * x / math.sqrt(RRW_CROSSING_S / 3.0) for x in b)
     return TriadErrors(b, k, turn_on, scale, misalignment_rad, zero_at_start)
@@ -95,8 +105,7 @@ def _mg(*v: float) -> tuple:
 CAR_RAZOR_ERRORS = ImuErrors(
     # turn-on: what the boot average left in the parked recordings (rms over them); the
     # wandering part starts at zero; scale 5 per mille, misalignment 3 mrad: assumptions
-    gyro=_triad("gyro", tuple(noise_figure(seed_calibration("viena").noise, "gyro", "bias_after_boot_rms")),
-                0.005, 0.003, True),
+    gyro=_triad("gyro", _car_figure("gyro", "bias_after_boot_rms"), 0.005, 0.003, True),
     # turn-on against the six-position calibration: the ADXL345's offset drift (0.8, 0.8, 4.5
     # mg/degC typical) over a few degrees; scale 3 per mille, misalignment 3 mrad: assumptions
     accel=_triad("accel", _mg(3.0, 3.0, 8.0), 0.003, 0.003, False),
@@ -142,13 +151,37 @@ class Measurement(NamedTuple):
     euler_deg: tuple        # yaw, pitch, roll of the truth (the firmware's own are worse)
 
 
+class _Chips(NamedTuple):
+    """A board's figures as `measure` uses them, worked out once: the matrices, and the
+    per-axis figures axis by axis, as Python floats."""
+
+    to_board: np.ndarray        # how the board sits in the car: board = to_board body
+    field_enu_T: np.ndarray     # the Earth's field, as Truth.mag_body_T scales it
+    mag_rows: list              # body field [T] to HMC5843 counts before the offset: C to_board / tesla_per_count
+    accel_axes: tuple           # (gain, offset, noise, eeprom offset, eeprom gain) per axis
+    gyro_axes: tuple            # (bias, noise) per axis
+    mag_axes: tuple             # (offset, noise) per axis
+
+    @classmethod
+    def of(cls, board: RazorBoard) -> _Chips:
+        def axes(*figures: tuple) -> tuple:
+            return tuple(zip(*(np.array(f, float).tolist() for f in figures)))
+        to_board = Mount(tuple(board.mount_zyx_deg)).matrix.T
+        return cls(to_board, np.array(board.field_enu_nT, float) * 1e-9,
+                   (np.array(board.mag_c, float) @ to_board / board.tesla_per_count).tolist(),
+                   axes(board.accel_gain_lsb_per_g, board.accel_offset_lsb, board.accel_noise_lsb,
+                        board.eeprom_offset_lsb, board.eeprom_gain_lsb_per_g),
+                   axes(board.gyro_bias_dps, board.gyro_noise_dps),
+                   axes(board.mag_offset_counts, board.mag_noise_counts))
+
+
 class _Run:
     """One run of the board (power-up to power-down): its error draws and filter states."""
 
     def __init__(self, board: RazorBoard, rng: np.random.Generator, t_s: float):
         self.errors: ErrorState = board.errors.start(rng, t_s)
-        self.accel_to_board = self.errors.accel_matrix @ board._to_board
-        self.gyro_to_board = self.errors.gyro_matrix @ board._to_board
+        self.accel_to_board = self.errors.accel_matrix @ board._chips.to_board
+        self.gyro_to_board = self.errors.gyro_matrix @ board._chips.to_board
         # the same, as rows of Python floats (for measure); the accelerometer's in g
         self.accel_rows = (self.accel_to_board / STANDARD_GRAVITY).tolist()
         self.gyro_rows = self.gyro_to_board.tolist()
@@ -199,25 +232,11 @@ class RazorBoard:
     #: how the board sits in the car (model/mount.py): board = R^T body
     mount_zyx_deg: tuple = (0.0, 0.0, 0.0)
     errors: ImuErrors = CAR_RAZOR_ERRORS
+    _chips: _Chips = field(init=False, repr=False, compare=False)      # made from the above
+    _run: _Run | None = field(init=False, repr=False, compare=False)   # once the first measure starts it
 
     def __post_init__(self):
-        for name in ("accel_gain_lsb_per_g", "accel_offset_lsb", "eeprom_gain_lsb_per_g",
-                     "eeprom_offset_lsb", "accel_noise_lsb", "gyro_bias_dps", "gyro_noise_dps",
-                     "mag_offset_counts", "mag_c", "mag_noise_counts", "field_enu_nT"):
-            object.__setattr__(self, "_" + name, np.array(getattr(self, name), float))
-        object.__setattr__(self, "_field_enu_T", self._field_enu_nT * 1e-9)      # as Truth.mag_body_T scales it
-        object.__setattr__(self, "_to_board", Mount(tuple(self.mount_zyx_deg)).matrix.T)
-        # body field [T] to what the HMC5843 counts before its offset: C (to_board h) / tesla_per_count
-        object.__setattr__(self, "_mag_rows", (self._mag_c @ self._to_board / self.tesla_per_count).tolist())
-        # the per-axis figures, axis by axis, as Python floats (for measure)
-        object.__setattr__(self, "_accel_axes", tuple(zip(*(
-            getattr(self, "_" + name).tolist() for name in (
-                "accel_gain_lsb_per_g", "accel_offset_lsb", "accel_noise_lsb",
-                "eeprom_offset_lsb", "eeprom_gain_lsb_per_g")))))
-        object.__setattr__(self, "_gyro_axes", tuple(zip(
-            self._gyro_bias_dps.tolist(), self._gyro_noise_dps.tolist())))
-        object.__setattr__(self, "_mag_axes", tuple(zip(
-            self._mag_offset_counts.tolist(), self._mag_noise_counts.tolist())))
+        object.__setattr__(self, "_chips", _Chips.of(self))
         object.__setattr__(self, "_run", None)
 
     def with_bias_step(self, gyro_dps=(0.0, 0.0, 0.0), accel_g=(0.0, 0.0, 0.0)) -> RazorBoard:
@@ -231,9 +250,11 @@ class RazorBoard:
 
     def run(self, rng: np.random.Generator, t_s: float = 0.0) -> _Run:
         """This board's run, started (its draws made) from `rng` the first time."""
-        if self._run is None:
-            object.__setattr__(self, "_run", _Run(self, rng, t_s))
-        return self._run
+        run = self._run
+        if run is None:
+            run = _Run(self, rng, t_s)
+            object.__setattr__(self, "_run", run)
+        return run
 
     def measure(self, truth, rng: np.random.Generator) -> Measurement:
         """One sample of the three sensors (the white noise drawn accel, gyro, mag, 3 each;
@@ -241,22 +262,22 @@ class RazorBoard:
 
         Python floats throughout, the matrices as rows: on 3-vectors numpy's per-call cost is
         several times the arithmetic's, every sample."""
-        run = self._run or self.run(rng, truth.t_s)
+        run, chips = self._run or self.run(rng, truth.t_s), self._chips
         err = run.errors.step(truth.t_s, truth.speed_mps)
         noise = rng.standard_normal(9).tolist()          # as three draws of 3: accel, gyro, mag
         f_g = _mat_vec(run.accel_rows, truth.specific_force_body_mps2.tolist())
         lsb = [_register(gain * (f + e) + offset + sigma * z, -4096.0, 4095.0)        # 13 bits at +-16 g
-               for (gain, offset, sigma, _, _), f, e, z in zip(self._accel_axes, f_g, err[3:], noise)]
+               for (gain, offset, sigma, _, _), f, e, z in zip(chips.accel_axes, f_g, err[3:], noise)]
         accel_g = tuple([(v - eeprom_offset) / eeprom_gain
-                         for (_, _, _, eeprom_offset, eeprom_gain), v in zip(self._accel_axes, lsb)])
+                         for (_, _, _, eeprom_offset, eeprom_gain), v in zip(chips.accel_axes, lsb)])
         w_body = _mat_vec(run.gyro_rows, truth.floats("gyro_body_radps"))
         alpha, grid = run.alpha(run.errors.dt), run.grid_dps
         low = run.lowpass = [x + alpha * (sigma * z - x)                # the chip's low-pass, on the noise
-                             for x, (_, sigma), z in zip(run.lowpass, self._gyro_axes, noise[3:6])]
+                             for x, (_, sigma), z in zip(run.lowpass, chips.gyro_axes, noise[3:6])]
         w = tuple([_rint((math.degrees(v) + bias + e + n + grid) * GYRO_LSB_PER_DPS) / GYRO_LSB_PER_DPS - grid
-                   for (bias, _), v, e, n in zip(self._gyro_axes, w_body, err, low)])
-        soft = _mat_vec(self._mag_rows, truth.body_of_enu(self._field_enu_T).tolist())   # mag_body_T
+                   for (bias, _), v, e, n in zip(chips.gyro_axes, w_body, err, low)])
+        soft = _mat_vec(chips.mag_rows, truth.body_of_enu(chips.field_enu_T).tolist())   # mag_body_T
         m = tuple([_register(v + offset + sigma * z, -2048.0, 2047.0)
-                   for (offset, sigma), v, z in zip(self._mag_axes, soft, noise[6:])])
+                   for (offset, sigma), v, z in zip(chips.mag_axes, soft, noise[6:])])
         yaw, pitch, roll = truth.euler_rad
         return Measurement(tuple(lsb), accel_g, w, m, (math.degrees(yaw), math.degrees(pitch), math.degrees(roll)))

@@ -94,6 +94,8 @@ class RazorTwin(ByteTwin):
 
     # -- frames -----------------------------------------------------------------------------
     def next_frame(self) -> bytes | None:
+        if self.truth is None:
+            raise TypeError("a RazorTwin without truth has no frames to send: give it `truth`")
         m = self.board.measure(self.truth(), self.rng)
         return encode_frame(self.board.board_id, m.accel_g, m.gyro_dps, m.mag_counts, m.euler_deg)
 

@@ -10,6 +10,8 @@ real bytes (issue 28).
   connect, 1033 every 30 s), as frames;
 - ``protocol``: what an NTRIP 1.0/2.0 caster says (responses, the source table);
 - ``caster``: `CasterTwin`, the caster on a local port, with the faults real casters have;
+  ``answer`` answers one connection, ``stream`` streams RTCM to it, ``mountpoint`` and
+  ``clients`` are what it serves and what it keeps of each connection;
 - ``timebase``: the caster's GPS time (real, or faster for tests);
 - ``credentials``: its login file, made when missing;
 - ``__main__``: ``python -m viena.services.ntrip.simulator`` (one caster, one mountpoint).

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from viena.services.estimator.state import STATE
+from viena.common.samples.estimator import STATE
 
 _READ = STATE.reader("t", "mode", "position_valid", "heading_valid", "origin", "enu_m", "yaw_rad",
                      "speed_mps", "sigma_h_m", "lat_deg", "lon_deg", "gnss_kind", "gnss_diff_age_s")

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from viena.common.samples.fix import SOLUTION_KINDS, solution_rank
 from viena.common.settings import setting
-from viena.services.gnss.model.fix import SOLUTION_KINDS, solution_rank
 from viena.services.pilot.model.estimate import Estimate
 
 #: what the pilot does when the rule is not met

@@ -13,9 +13,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from viena.common import rotation
-from viena.common.display import fmt_deg, fmt_unit, fmt_vec, vector
 from viena.common.geodesy import LocalFrame
-from viena.common.schema import F, Schema
 
 #: Lisbon geomagnetic field, Jan 2017 (docs/frames.md#magnetic-field-in-lisbon), nT in ENU.
 LISBON_MAG_ENU_NT = np.array([-1121.5, 26479.8, -34884.7])
@@ -205,27 +203,6 @@ def _local_frame(origin) -> LocalFrame:
     return _FRAMES[key]
 
 
-TRUTH = Schema("viena.sim.truth/1", {
-    "t": F.time,
-    "seq": F.int,
-    "t_sim_s": F.float,
-    "origin": F.vec(3),                 # ENU origin: lat_deg, lon_deg, height_m
-    "ecef_m": F.vec(3),
-    "lat_deg": F.float,
-    "lon_deg": F.float,
-    "height_m": F.float,
-    "enu_m": F.vec(3),
-    "vel_enu_mps": F.vec(3),
-    "accel_enu_mps2": F.vec(3),
-    "quat": F.vec(4),                   # body -> ENU, Hamilton [w x y z]
-    "euler_rad": F.vec(3),              # yaw, pitch, roll (Z-Y-X)
-    "gyro_radps": F.vec(3),             # body angular rate
-    "specific_force_mps2": F.vec(3),    # body, what an accelerometer feels
-    "speed_mps": F.float,
-    "wheel_angle_rad": F.float,
-})
-
-
 def truth_sample(truth: Truth) -> dict:
     """The published form of a Truth (plain lists of floats, float64 ECEF)."""
     lat, lon, h = truth.geodetic_of()
@@ -247,15 +224,4 @@ def truth_sample(truth: Truth) -> dict:
         "specific_force_mps2": truth.specific_force_body_mps2.tolist(),
         "speed_mps": float(truth.speed_mps),
         "wheel_angle_rad": float(truth.wheel_angle_rad),
-    }
-
-
-def monitor_view(sample: dict) -> dict[str, str]:
-    """How the monitor shows the simulated car's truth (any map: what came on its key)."""
-    euler = vector(sample.get("euler_rad"), 3)
-    return {
-        "position ENU m": fmt_vec(sample.get("enu_m")),
-        "speed": fmt_unit(sample.get("speed_mps"), "m/s"),
-        "yaw": "-" if euler is None else fmt_deg(euler[0]),
-        "wheel": fmt_deg(sample.get("wheel_angle_rad")),
     }

@@ -158,15 +158,15 @@ class SweepRecorder:
 
     def add(self, qc: int, t: float) -> None:
         s = self.settings
-        if self.last_qc is not None:
+        if self.last_qc is not None and self.last_t is not None:     # (set together)
             allowed = s.max_jump_qc + s.max_hand_speed_qc_s * max(0.0, t - self.last_t)
             if abs(qc - self.last_qc) > allowed:
                 last = self.last_qc
                 self.reset()
                 self.problem = f"counter jumped {last} -> {qc}: sweep restarted"
-        if self.min_qc is None:
-            self.min_qc = self.max_qc = qc
-        self.min_qc, self.max_qc = min(self.min_qc, qc), max(self.max_qc, qc)
+        lo = qc if self.min_qc is None else self.min_qc
+        hi = qc if self.max_qc is None else self.max_qc
+        self.min_qc, self.max_qc = min(lo, qc), max(hi, qc)
         if self.last_qc is None or abs(qc - self.last_qc) > s.still_qc:
             self.still_since = t
         self.last_qc, self.last_t = qc, t
@@ -178,18 +178,18 @@ class SweepRecorder:
 
     @property
     def span_qc(self) -> int:
-        return 0 if self.min_qc is None else self.max_qc - self.min_qc
+        return 0 if self.min_qc is None or self.max_qc is None else self.max_qc - self.min_qc
 
     def done(self, t: float) -> bool:
         s = self.settings
-        if self.min_qc is None or self.span_qc < s.min_span_qc:
+        if self.min_qc is None or self.max_qc is None or self.last_qc is None or self.span_qc < s.min_span_qc:
             return False
         back = abs(self.last_qc - zero_ref(self.min_qc, self.max_qc)) <= s.return_tolerance_qc
         return back and self.still_since is not None and t - self.still_since >= s.sweep_settle_s
 
     def result(self) -> Calibration:
         """The calibration this sweep gives, checked (CalibrationRefused otherwise)."""
-        if self.min_qc is None:
+        if self.min_qc is None or self.max_qc is None:
             raise CalibrationRefused("no position readings: the drive is not answering")
         return check_calibration(self.min_qc, self.max_qc, None, self.settings)
 

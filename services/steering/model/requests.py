@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TypeGuard
 
 from viena.common.text import printable
 from viena.services.steering.model.signing import SEQ_MAX, setpoint_mac
@@ -108,7 +109,7 @@ def parse_setpoint(payload) -> Setpoint | BadSetpoint:
     if unknown:
         return BadSetpoint(f"unknown field '{printable(unknown[0])}' (known: angle_deg or angle_rad, seq, t, mac)")
     requested, why = _requested_deg(payload)
-    if why:
+    if why or requested is None:                 # (no angle always says why)
         return BadSetpoint(why)
     mac, seq, t = payload.get("mac"), payload.get("seq"), payload.get("t")
     if mac is None:
@@ -123,7 +124,7 @@ def parse_setpoint(payload) -> Setpoint | BadSetpoint:
     return Setpoint(requested, mac, seq, t, unit, float(payload[f"angle_{unit}"]))
 
 
-def _int64(value) -> bool:
+def _int64(value: object) -> TypeGuard[int]:
     return isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= SEQ_MAX
 
 

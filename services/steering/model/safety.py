@@ -127,6 +127,14 @@ class Envelope:
         return (lo, hi) if lo < hi else None
 
     @property
+    def calibrated_allowed_deg(self) -> tuple[float, float]:
+        """`allowed_deg` where only a calibrated envelope gets (armed: `arm_refusal` checked it)."""
+        allowed = self.allowed_deg
+        if allowed is None:
+            raise RuntimeError("the envelope has no calibrated range")
+        return allowed
+
+    @property
     def owner(self) -> str | None:
         if self._owner[0] != self.lease:        # hashed once per lease, not per state
             self._owner = (self.lease, lease_hash(self.lease))
@@ -174,6 +182,12 @@ class Envelope:
         self.last_valid_t = now_s
         self.tripped, self.trip_cause = "", None
         log.info("armed by %s at %.2f deg", self.owner, measured_deg)
+        return self._lease_held()
+
+    def _lease_held(self) -> str:
+        """The owner's lease, set by every arm."""
+        if self.lease is None:
+            raise RuntimeError("the envelope is not armed")
         return self.lease
 
     def disarm(self, lease: str | None) -> bool:
@@ -241,9 +255,9 @@ class Envelope:
         self.last_seq = request.seq
         if measured_deg is None or not math.isfinite(measured_deg):
             return Decision(REJECTED, "no position from the drive", requested)
-        lo, hi = self.allowed_deg
+        lo, hi = self.calibrated_allowed_deg
         goal = min(max(requested, lo), hi)
-        acted = ("range",) if goal != requested else ()
+        acted: tuple[str, ...] = ("range",) if goal != requested else ()
         previous, previous_t = self._goal_used, self._goal_t
         self.goal_deg = goal
         target, ramp, speed, lim = self._next_target(goal, measured_deg, now)
@@ -293,12 +307,14 @@ class Envelope:
         if measured_deg is None or not math.isfinite(measured_deg):
             self.trip(TripCause.NO_POSITION)
             return None, self.tripped
+        if self.goal_deg is None:                    # set by every arm and setpoint
+            raise RuntimeError("armed without a goal")
         target = self._next_target(self.goal_deg, measured_deg, now_s)[0]
         return target, ""
 
     def _watchdog(self, now: float) -> str:
         """Trip if armed and silent for longer than the deadline; the reason, or ''."""
-        if not self.armed:
+        if not self.armed or self.last_valid_t is None:     # every arm sets last_valid_t
             return ""
         silent = now - self.last_valid_t
         if silent <= self.settings.watchdog_s:
@@ -313,10 +329,12 @@ class Envelope:
         angle. Returns the target, the limits that acted, the speed and its limits."""
         s = self.settings
         speed, lim = self.limits_now(now)
-        lo, hi = self.allowed_deg
+        lo, hi = self.calibrated_allowed_deg
         b_lo, b_hi = max(lo, -lim.max_wheel_deg), min(hi, lim.max_wheel_deg)
         if b_lo > b_hi:                              # a range that does not hold 0: its end nearest it
             b_lo = b_hi = lo if lo > 0 else hi
+        if self.target_deg is None or self.target_t is None:     # set by every arm
+            raise RuntimeError("armed without a target")
         prev, dt = self.target_deg, max(0.0, now - self.target_t)
         acted: tuple[str, ...] = ()
         wanted = min(max(goal, b_lo), b_hi)

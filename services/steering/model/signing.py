@@ -50,8 +50,10 @@ def signed_setpoint(lease: str, angle_deg: float | None = None, *, seq: int, ang
     sender's clock agrees with the steering's; `seq` alone already refuses every replay."""
     if (angle_deg is None) == (angle_rad is None):
         raise ValueError("give angle_deg or angle_rad")
-    unit, value = ("deg", angle_deg) if angle_rad is None else ("rad", angle_rad)
-    payload = {f"angle_{unit}": value, "seq": seq}
+    unit, value = ("deg", angle_deg) if angle_deg is not None else ("rad", angle_rad)
+    if value is None:                            # (one of the two is given: checked above)
+        raise ValueError("give angle_deg or angle_rad")
+    payload: dict[str, float | int | str] = {f"angle_{unit}": value, "seq": seq}
     if t_ns is not None:
         payload["t"] = t_ns
     payload["mac"] = setpoint_mac(lease, unit, value, seq, t_ns)

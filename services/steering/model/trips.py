@@ -10,26 +10,8 @@ state, the monitor (through the state's view), the tests and docs/steering.md#wa
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import StrEnum
 
-
-class TripCause(StrEnum):
-    """The words on the wire (`trip_cause` in the steering state)."""
-    WATCHDOG = "watchdog"                        # no valid setpoint in time
-    FEEDBACK_TIMEOUT = "feedback_timeout"        # no TPDO from the drive in time
-    NO_POSITION = "no_position"                  # the envelope was given no measured angle
-    DRIVE_HEARTBEAT = "drive_heartbeat"          # the drive's heartbeat stopped
-    LIFE_GUARD = "life_guard"                    # the drive stopped hearing the host (EMCY 0x8130)
-    DRIVE_FAULT = "drive_fault"                  # any other EMCY
-    NOT_ENABLED = "not_enabled"                  # the drive left Operation Enabled
-    ESTOP = "estop"                              # anyone asked
-    LINK_LOST = "link_lost"                      # the CAN adapter went away
-    DRIVE_REBOOTED = "drive_rebooted"            # boot-up message: configuration and counter gone
-    DRIVE_SILENT = "drive_silent"                # silent long enough to have lost them
-    NOT_OPERATIONAL = "not_operational"          # NMT state other than operational
-    CALIBRATION_LOST = "calibration_lost"        # the calibration was dropped while armed
-    SERVICE_STOPPING = "service_stopping"        # the service is shutting down
-
+from viena.common.samples.steering import TripCause
 
 #: what the core does for every cause: the drive holds the wheel, then lets it go
 HOLD = "quick stop, power off after `quickstop_hold_s`"

@@ -101,5 +101,5 @@ def make_epos_device(name: str, table: dict, car, service) -> EposDevice:
     else:
         device = start_twin_on_hub(settings, host=service.settings.host, port=int(port), bitrate=int(bitrate))
     car.set_wheel_source(device.twin.wheel_angle_rad)
-    device.twin.hands = car.driver_wheel_angle       # a person drives while the drive is off
+    device.twin.person.hands = car.driver_wheel_angle       # a person drives while the drive is off
     return device

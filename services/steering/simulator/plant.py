@@ -61,7 +61,7 @@ class PositionPlant:
         """Power stage on: the loop starts from where the axis is, at rest."""
         self.x = float(position_qc)
         self.v = 0.0
-        self._pipe.extend([self.x] * self._pipe.maxlen)
+        self._pipe.extend([self.x] * len(self._pipe))        # (always full: maxlen items)
         self._e_prev = 0.0
 
     def step(self, setpoint_qc: float, dt: float) -> None:

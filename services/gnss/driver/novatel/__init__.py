@@ -62,8 +62,9 @@ from .logs import (
     decode_version,
     encode_log,
 )
-from .receiver import CorrectionsSetup, LogRequest, NovatelReceiver, ReceiverStats, StartupConfig
+from .receiver import NovatelReceiver, ReceiverStats
 from .sbas import SbasCheck, check_sbas, wanted_sbas
+from .startup import CorrectionsSetup, LogRequest, StartupConfig
 from .writer import CorrectionsWriter, SecondPort
 
 __all__ = [name for name in dir() if not name.startswith("_")]

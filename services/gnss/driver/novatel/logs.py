@@ -2,13 +2,16 @@
 vol. 2 §3.4.3-3.4.6, statuses and types as named enums (docs/sensors.md#logs-used); and
 VERSION (37, §3.4.94), asked once at start-up for the model and firmware.
 
+Each log is defined once, as its fields' wires (wire.py: struct code, count, enum table,
+text): the driver decodes, and the twin encodes, through that one definition.
+
 A decoded log keeps its header, so the receiver's GPS time (week + ms) travels with the
 data, and ``utc_ns`` gives the same instant in UTC.
 """
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 from viena.services.gnss.driver.gpstime import gps_to_utc_ns
@@ -16,167 +19,94 @@ from viena.services.gnss.driver.gpstime import gps_to_utc_ns
 from .commands import BodyError
 from .enums import ComponentType, Datum, MessageId, PositionType, SolutionStatus
 from .framing import Frame, Header, encode_frame
+from .wire import BinaryRecord, wire
 
 Vec3 = tuple[float, float, float]
+RESERVED = b"\0\0\0\0"
 
 
-def _station(raw: bytes) -> str:
-    """A Char[n] field: the text up to its first NUL."""
-    return raw.split(b"\0", 1)[0].decode("ascii", "replace")
-
-
-def _station_bytes(station: str) -> bytes:
-    return station.encode("ascii", "replace")[:4].ljust(4, b"\0")
-
-
-@dataclass(frozen=True)
-class BestXyz:
+class BestXyz(BinaryRecord):
     """Best available ECEF position and velocity (§3.4.6, 112-byte body)."""
 
-    MESSAGE_ID: ClassVar[int] = MessageId.BESTXYZ
-    _BODY: ClassVar[struct.Struct] = struct.Struct("<LLdddfffLLdddfff4sfffBBBB4s")
+    MESSAGE_ID = MessageId.BESTXYZ
 
-    pos_status: SolutionStatus
-    pos_type: PositionType
-    position_m: Vec3                # P-X, P-Y, P-Z (ECEF, WGS84)
-    position_sigma_m: Vec3
-    vel_status: SolutionStatus
-    vel_type: PositionType
-    velocity_mps: Vec3              # V-X, V-Y, V-Z
-    velocity_sigma_mps: Vec3
-    station_id: str = ""
-    vel_latency_s: float = 0.0      # subtract from the time tag for the velocity's time
-    diff_age_s: float = 0.0
-    sol_age_s: float = 0.0
-    sats_tracked: int = 0           # #obs
-    sats_used: int = 0              # #GPSL1 used in the solution
-    sats_l1_rtk: int = 0            # #L1 above the RTK mask
-    sats_l2_rtk: int = 0            # #L2 above the RTK mask
-    reserved: bytes = b"\0\0\0\0"
-
-    def body(self) -> bytes:
-        return self.pack(*(getattr(self, f.name) for f in fields(self)))
-
-    @classmethod
-    def pack(cls, pos_status: int, pos_type: int, position_m: Vec3, position_sigma_m: Vec3, vel_status: int,
-             vel_type: int, velocity_mps: Vec3, velocity_sigma_mps: Vec3, station_id: str = "",
-             vel_latency_s: float = 0.0, diff_age_s: float = 0.0, sol_age_s: float = 0.0, sats_tracked: int = 0,
-             sats_used: int = 0, sats_l1_rtk: int = 0, sats_l2_rtk: int = 0, reserved: bytes = b"\0\0\0\0") -> bytes:
-        """The body of a BestXyz of these fields (its fields, in order) without making one: the
-        NovAtel twin writes one every epoch."""
-        return cls._BODY.pack(
-            pos_status, pos_type, *position_m, *position_sigma_m, vel_status, vel_type, *velocity_mps,
-            *velocity_sigma_mps, _station_bytes(station_id), vel_latency_s, diff_age_s, sol_age_s,
-            sats_tracked, sats_used, sats_l1_rtk, sats_l2_rtk, reserved)
-
-    @classmethod
-    def from_body(cls, body: bytes) -> BestXyz:
-        v = _unpack(cls, body)
-        return cls(SolutionStatus.of(v[0]), PositionType.of(v[1]), v[2:5], v[5:8],  # type: ignore[call-arg]
-                   SolutionStatus.of(v[8]), PositionType.of(v[9]), v[10:13], v[13:16],
-                   _station(v[16]), *v[17:24], v[24])
+    pos_status: SolutionStatus = wire("L", enum=SolutionStatus)
+    pos_type: PositionType = wire("L", enum=PositionType)
+    position_m: Vec3 = wire("d", count=3)               # P-X, P-Y, P-Z (ECEF, WGS84)
+    position_sigma_m: Vec3 = wire("f", count=3)
+    vel_status: SolutionStatus = wire("L", enum=SolutionStatus)
+    vel_type: PositionType = wire("L", enum=PositionType)
+    velocity_mps: Vec3 = wire("d", count=3)             # V-X, V-Y, V-Z
+    velocity_sigma_mps: Vec3 = wire("f", count=3)
+    station_id: str = wire("4s", text=True, default="")
+    vel_latency_s: float = wire("f", default=0.0)       # subtract from the time tag for the velocity's time
+    diff_age_s: float = wire("f", default=0.0)
+    sol_age_s: float = wire("f", default=0.0)
+    sats_tracked: int = wire("B", default=0)            # #obs
+    sats_used: int = wire("B", default=0)               # #GPSL1 used in the solution
+    sats_l1_rtk: int = wire("B", default=0)             # #L1 above the RTK mask
+    sats_l2_rtk: int = wire("B", default=0)             # #L2 above the RTK mask
+    reserved: bytes = wire("4s", default=RESERVED)
 
 
-@dataclass(frozen=True)
-class BestPos:
+class BestPos(BinaryRecord):
     """Best available geodetic position (§3.4.3, 72-byte body). Height is above mean sea
     level; add the undulation for the ellipsoidal height."""
 
-    MESSAGE_ID: ClassVar[int] = MessageId.BESTPOS
-    _BODY: ClassVar[struct.Struct] = struct.Struct("<LLdddfLfff4sffBBBB4s")
+    MESSAGE_ID = MessageId.BESTPOS
 
-    pos_status: SolutionStatus
-    pos_type: PositionType
-    lat_deg: float
-    lon_deg: float
-    height_msl_m: float
-    undulation_m: float
-    datum: Datum = Datum.WGS84
-    lat_sigma_m: float = 0.0
-    lon_sigma_m: float = 0.0
-    height_sigma_m: float = 0.0
-    station_id: str = ""
-    diff_age_s: float = 0.0
-    sol_age_s: float = 0.0
-    sats_tracked: int = 0
-    sats_used: int = 0
-    sats_l1_rtk: int = 0
-    sats_l2_rtk: int = 0
-    reserved: bytes = b"\0\0\0\0"
+    pos_status: SolutionStatus = wire("L", enum=SolutionStatus)
+    pos_type: PositionType = wire("L", enum=PositionType)
+    lat_deg: float = wire("d")
+    lon_deg: float = wire("d")
+    height_msl_m: float = wire("d")
+    undulation_m: float = wire("f")
+    datum: Datum = wire("L", enum=Datum, default=Datum.WGS84)
+    lat_sigma_m: float = wire("f", default=0.0)
+    lon_sigma_m: float = wire("f", default=0.0)
+    height_sigma_m: float = wire("f", default=0.0)
+    station_id: str = wire("4s", text=True, default="")
+    diff_age_s: float = wire("f", default=0.0)
+    sol_age_s: float = wire("f", default=0.0)
+    sats_tracked: int = wire("B", default=0)
+    sats_used: int = wire("B", default=0)
+    sats_l1_rtk: int = wire("B", default=0)
+    sats_l2_rtk: int = wire("B", default=0)
+    reserved: bytes = wire("4s", default=RESERVED)
 
     @property
     def height_m(self) -> float:
         """Ellipsoidal height."""
         return self.height_msl_m + self.undulation_m
 
-    def body(self) -> bytes:
-        return self._BODY.pack(
-            self.pos_status, self.pos_type, self.lat_deg, self.lon_deg, self.height_msl_m,
-            self.undulation_m, self.datum, self.lat_sigma_m, self.lon_sigma_m,
-            self.height_sigma_m, _station_bytes(self.station_id), self.diff_age_s,
-            self.sol_age_s, self.sats_tracked, self.sats_used, self.sats_l1_rtk,
-            self.sats_l2_rtk, self.reserved)
 
-    @classmethod
-    def from_body(cls, body: bytes) -> BestPos:
-        v = _unpack(cls, body)
-        return cls(SolutionStatus.of(v[0]), PositionType.of(v[1]), *v[2:6], Datum.of(v[6]),  # type: ignore[call-arg]
-                   *v[7:10], _station(v[10]), *v[11:17], v[17])
-
-
-@dataclass(frozen=True)
-class BestVel:
+class BestVel(BinaryRecord):
     """Best available velocity (§3.4.5, 44-byte body): horizontal speed, track over
     ground from true north, vertical speed."""
 
-    MESSAGE_ID: ClassVar[int] = MessageId.BESTVEL
-    _BODY: ClassVar[struct.Struct] = struct.Struct("<LLffdddf")
+    MESSAGE_ID = MessageId.BESTVEL
 
-    vel_status: SolutionStatus
-    vel_type: PositionType
-    latency_s: float
-    diff_age_s: float
-    hor_speed_mps: float
-    track_deg: float
-    vert_speed_mps: float
-    reserved: float = 0.0
-
-    def body(self) -> bytes:
-        return self._BODY.pack(self.vel_status, self.vel_type, self.latency_s,
-                               self.diff_age_s, self.hor_speed_mps, self.track_deg,
-                               self.vert_speed_mps, self.reserved)
-
-    @classmethod
-    def from_body(cls, body: bytes) -> BestVel:
-        v = _unpack(cls, body)
-        return cls(SolutionStatus.of(v[0]), PositionType.of(v[1]), *v[2:])
+    vel_status: SolutionStatus = wire("L", enum=SolutionStatus)
+    vel_type: PositionType = wire("L", enum=PositionType)
+    latency_s: float = wire("f")
+    diff_age_s: float = wire("f")
+    hor_speed_mps: float = wire("d")
+    track_deg: float = wire("d")
+    vert_speed_mps: float = wire("d")
+    reserved: float = wire("f", default=0.0)
 
 
-@dataclass(frozen=True)
-class Component:
+class Component(BinaryRecord):
     """One component of a VERSION log (§3.4.94, 108 bytes; formats in Table 89)."""
 
-    _BODY: ClassVar[struct.Struct] = struct.Struct("<L16s16s16s16s16s12s12s")
-
-    type: ComponentType = ComponentType.GPSCARD
-    model: str = ""                 # e.g. "RT2WA": the enabled model (vol. 1 Table 3)
-    psn: str = ""                   # product serial number
-    hw_version: str = ""            # P-RS-CCC, e.g. "OEM4g2-2.00-X2T"
-    sw_version: str = ""            # VV.RRR[Xxxx], e.g. "2.200A1"
-    boot_version: str = ""
-    comp_date: str = ""             # YYYY/MM/DD (the example's "2004/Feb/10")
-    comp_time: str = ""             # HH:MM:SS
-
-    def pack(self) -> bytes:
-        sizes = (16, 16, 16, 16, 16, 12, 12)
-        texts = (self.model, self.psn, self.hw_version, self.sw_version, self.boot_version,
-                 self.comp_date, self.comp_time)
-        return self._BODY.pack(self.type, *(t.encode("ascii", "replace")[:n] for t, n in zip(texts, sizes)))
-
-    @classmethod
-    def unpack_from(cls, body: bytes, offset: int) -> Component:
-        v = cls._BODY.unpack_from(body, offset)
-        return cls(ComponentType.of(v[0]), *(_station(raw) for raw in v[1:]))
+    type: ComponentType = wire("L", enum=ComponentType, default=ComponentType.GPSCARD)
+    model: str = wire("16s", text=True, default="")         # e.g. "RT2WA": the enabled model (vol. 1 Table 3)
+    psn: str = wire("16s", text=True, default="")           # product serial number
+    hw_version: str = wire("16s", text=True, default="")    # P-RS-CCC, e.g. "OEM4g2-2.00-X2T"
+    sw_version: str = wire("16s", text=True, default="")    # VV.RRR[Xxxx], e.g. "2.200A1"
+    boot_version: str = wire("16s", text=True, default="")
+    comp_date: str = wire("12s", text=True, default="")     # YYYY/MM/DD (the example's "2004/Feb/10")
+    comp_time: str = wire("12s", text=True, default="")     # HH:MM:SS
 
 
 @dataclass(frozen=True)
@@ -195,11 +125,11 @@ class Version:
         return next((c for c in self.components if c.type == ComponentType.GPSCARD), None)
 
     def body(self) -> bytes:
-        return self._COUNT.pack(len(self.components)) + b"".join(c.pack() for c in self.components)
+        return self._COUNT.pack(len(self.components)) + b"".join(c.body() for c in self.components)
 
     @classmethod
     def from_body(cls, body: bytes) -> Version:
-        size = Component._BODY.size
+        size = Component.CODEC.size
         if len(body) < cls._COUNT.size:
             raise BodyError(f"VERSION body is {len(body)} bytes, expected at least 4")
         count, = cls._COUNT.unpack_from(body)
@@ -215,13 +145,6 @@ def decode_version(frame: Frame) -> Version:
 
 
 LOGS: dict[int, type[BestXyz] | type[BestPos] | type[BestVel]] = {c.MESSAGE_ID: c for c in (BestXyz, BestPos, BestVel)}
-
-
-def _unpack(cls, body: bytes) -> tuple:
-    if len(body) != cls._BODY.size:
-        raise BodyError(f"{MessageId(cls.MESSAGE_ID).name} body is {len(body)} bytes, "
-                        f"expected {cls._BODY.size}")
-    return cls._BODY.unpack(body)
 
 
 @dataclass(frozen=True)

@@ -45,14 +45,10 @@ from .commands import (
     Command,
     CommandError,
     CommandTimeout,
-    DgpsTimeout,
     DynamicsCommand,
-    InterfaceModeCommand,
     Log,
-    PsrDiffSource,
     Reset,
     Response,
-    RtkSource,
     SaveConfig,
     SbasControl,
     Unlog,
@@ -61,14 +57,10 @@ from .commands import (
 )
 from .corrections import ReceiverAbility, ability_of_version
 from .enums import (
-    ComPort,
-    DgpsType,
     Dynamics,
-    InterfaceMode,
     MessageFormat,
     MessageId,
     Port,
-    Responses,
     SbasKeyword,
     SbasSystem,
     SbasTestMode,
@@ -76,6 +68,7 @@ from .enums import (
 )
 from .framing import MAX_BODY_LENGTH, AsciiFrame, DecoderStats, Frame, FrameDecoder
 from .logs import LogMessage, Version, decode_log
+from .startup import StartupConfig, run_startup
 
 log = logging.getLogger(__name__)
 
@@ -84,52 +77,6 @@ log = logging.getLogger(__name__)
 BREAK_S = 0.25
 BREAK_GAP_S = 1.5
 BREAK_SETTLE_S = 0.25
-
-
-@dataclass(frozen=True)
-class LogRequest:
-    """One LOG of the start-up sequence."""
-
-    message: MessageId = MessageId.BESTXYZ
-    trigger: Trigger = Trigger.ONTIME
-    period: float = 0.05
-    offset: float = 0.0
-    hold: bool = False
-
-
-@dataclass(frozen=True)
-class CorrectionsSetup:
-    """How the receiver is to take differential corrections (start-up's last part)."""
-
-    format: str = ""                # "" none; RTCMV3, RTCM, RTCA, CMR (INTERFACEMODE's names)
-    port: ComPort | None = None     # None: the logs' own port; else the receiver's port they go to
-    baud: int = 0                   # that other port's rate, set by COM (0: leave it)
-    dgps_timeout_s: int = 60        # DGPSTIMEOUT, 2-1000 s (RTK's is 60 s, fixed)
-    source_id: str = "ANY"          # the base station to take them from (Table 31's IDs)
-    check: bool = True              # refuse a format the VERSION's model and firmware do not take
-    #: on the logs' own port, the wait for INTERFACEMODE's answer (it queues behind RXCONFIG)
-    last_answer_s: float = 3.0
-
-
-@dataclass(frozen=True)
-class StartupConfig:
-    """The car's start-up sequence; every field is a setting of the service."""
-
-    initial_baud: int = 9600        # the receiver's factory baud, what a break restores
-    baud: int = 115200
-    send_break: bool | None = None  # None: when the URL can carry one (not socket://)
-    unlogall_port: Port = Port.THISPORT_ALL
-    dynamics: Dynamics = Dynamics.AIR
-    sbas: SbasKeyword | None = SbasKeyword.ENABLE   # None: leave SBAS alone
-    sbas_system: SbasSystem = SbasSystem.AUTO
-    sbas_prn: int = 0
-    sbas_testmode: SbasTestMode = SbasTestMode.NONE
-    sbas_enable_value: int = 0      # what the firmware reads as ENABLE (manual: 0; later: 1)
-    logs: tuple[LogRequest, ...] = (LogRequest(),)
-    read_config: bool = False       # end with LOG RXCONFIGA ONCE: the settings by name
-    ask_version: bool = False       # LOG VERSION ONCE after the logs: model and firmware
-    version_timeout_s: float = 1.0  # how long the VERSION log may take after its LOG's answer
-    corrections: CorrectionsSetup = CorrectionsSetup()
 
 
 @dataclass
@@ -204,6 +151,11 @@ class NovatelReceiver:
     @property
     def is_open(self) -> bool:
         return self._link.is_open
+
+    @property
+    def carries_break(self) -> bool:
+        """Whether the port can send a break (not socket://)."""
+        return self._link.carries_break
 
     def open(self, baudrate: int = 9600) -> None:
         self._reader.stop()           # an old reader must not see its port close
@@ -304,39 +256,10 @@ class NovatelReceiver:
         self._link.set_baudrate(baudrate)
 
     # -- the car's sequences ---------------------------------------------------------
-    def startup(self, config: StartupConfig = StartupConfig()) -> None:
-        """Open (if needed) and configure the receiver the way the car does."""
-        if not self.is_open:
-            self.open(config.initial_baud)
-        else:
-            self.set_baud(config.initial_baud)
-        send_break = self._link.carries_break if config.send_break is None else config.send_break
-        if send_break:
-            self._reset_port_by_break()
-        self._unlogall_at(config)
-        try:
-            self.com(config.baud)
-        except CommandTimeout:
-            # Some firmware switches before answering; the next command proves the link.
-            log.info("%s: no answer to COM %d, switching anyway", self.url, config.baud)
-        self.set_baud(config.baud)
-        self.dynamics(config.dynamics)
-        if config.sbas is not None:
-            self.sbascontrol(config.sbas, config.sbas_system, config.sbas_prn,
-                             config.sbas_testmode, config.sbas_enable_value)
-        for req in config.logs:
-            self.log(req.message, req.trigger, req.period, req.offset, req.hold)
-        self.corrections_format, self.corrections_refused = "", ""
-        self.corrections_unconfirmed = False
-        if config.ask_version or config.corrections.format:
-            self.request_version(config.version_timeout_s)
-        same_port = False
-        if config.corrections.format:
-            same_port = self._configure_corrections(config.corrections)
-        if config.read_config:
-            self._request_config()
-        if same_port:
-            self._switch_this_port(config.corrections)
+    def startup(self, config: StartupConfig | None = None) -> None:
+        """Open (if needed) and configure the receiver the way the car does (startup.py;
+        StartupConfig() without one)."""
+        run_startup(self, StartupConfig() if config is None else config)
 
     def request_version(self, timeout_s: float = 1.0) -> Version | None:
         """LOG VERSION ONCE and wait for it: `version` and `ability` (what its model and
@@ -354,98 +277,17 @@ class NovatelReceiver:
         self.version_error = ""
         return self.version
 
-    def _configure_corrections(self, setup: CorrectionsSetup) -> bool:
-        """Everything the receiver needs to take `setup.format` but the logs' port's own
-        INTERFACEMODE; True when that is still to be sent (the caller sends it last). A
-        format the receiver cannot take, or a command it refuses, leaves corrections off
-        (`corrections_refused` says why) and the receiver as it was: single-point."""
-        fmt = setup.format
-        refusal = self._refusal(setup)
-        if refusal:
-            self.corrections_refused = refusal
-            return False
-        kind = DgpsType[fmt]
-        rtk = self.ability is None or bool(self.ability.rtk)       # unchecked: try RTK too
-        commands: list[Command] = [DgpsTimeout(setup.dgps_timeout_s)]
-        if rtk:
-            commands.append(RtkSource(kind, setup.source_id))
-        if fmt != "CMR":                                            # CMR is RTK only (Table 31)
-            commands.append(PsrDiffSource(kind, setup.source_id))
-        if setup.port is not None:
-            if setup.baud:
-                commands.append(Com(port=setup.port, baud=setup.baud))
-            commands.append(InterfaceModeCommand(setup.port, InterfaceMode[fmt], InterfaceMode.NONE,
-                                                 Responses.OFF))
-        for cmd in commands:
-            try:
-                self.command(cmd)
-            except (CommandError, CommandTimeout) as exc:
-                self.corrections_refused = str(exc)
-                return False
-        if setup.port is not None:
-            self.corrections_format = fmt
-            return False
-        return True
-
-    def _refusal(self, setup: CorrectionsSetup) -> str:
-        if not setup.check:
-            return ""
-        if self.ability is None:
-            return (f"the receiver did not say its model and firmware ({self.version_error or 'no VERSION'}); "
-                    f"corrections_check = false writes them anyway")
-        return self.ability.refusal(setup.format)
-
-    def _switch_this_port(self, setup: CorrectionsSetup) -> None:
-        """INTERFACEMODE THISPORT <format> NOVATEL ON: the logs keep coming, the port takes
-        only corrections from now on. Its answer queues behind RXCONFIG's kilobytes, and a
-        receiver that switches before answering is switched all the same: without an answer
-        the port is taken as switched, `corrections_unconfirmed` (until a differential fix
-        says the receiver uses them)."""
-        cmd = InterfaceModeCommand(ComPort.THISPORT, InterfaceMode[setup.format], InterfaceMode.NOVATEL,
-                                   Responses.ON)
-        try:
-            self.command(cmd, timeout=max(self.command_timeout, setup.last_answer_s))
-        except CommandTimeout:
-            log.info("%s: no answer to INTERFACEMODE %s, taken as switched (unconfirmed)", self.url, setup.format)
-            self.corrections_unconfirmed = True
-        except CommandError as exc:
-            self.corrections_refused = str(exc)
-            return
-        self.corrections_format = setup.format
-
-    def write_corrections(self, data: bytes) -> None:
-        """Send correction bytes on this port (whole frames: the link's write lock keeps a
-        command's frame out of them); SerialException or OSError when the port is gone."""
-        self._link.write(data)
-
-    def _request_config(self) -> None:
-        """LOG RXCONFIGA ONCE: the receiver's settings arrive as ASCII logs (into `config`).
-        Last, so that its few kilobytes delay no command's response; a receiver that
-        refuses it is still a working receiver, so that is only noted."""
-        try:
-            self.log(MessageId.RXCONFIG, Trigger.ONCE, fmt=MessageFormat.ASCII)
-        except (CommandError, CommandTimeout) as exc:
-            self.config_request_error = str(exc)
-            log.warning("%s: cannot read the receiver's configuration: %s", self.url, exc)
-
-    def _reset_port_by_break(self) -> None:
+    def reset_port_by_break(self) -> None:
+        """Two breaks and a quiet spell: the port back to its factory rate and modes (COM §2.6.10)."""
         self._link.send_break(BREAK_S)
         clock.sleep(BREAK_GAP_S)
         self._link.send_break(BREAK_S)
         clock.sleep(BREAK_SETTLE_S)
 
-    def _unlogall_at(self, config: StartupConfig) -> None:
-        """UNLOGALL at the factory rate; a receiver whose saved configuration kept the
-        working rate answers at that one instead."""
-        try:
-            self.unlogall(config.unlogall_port)
-        except CommandTimeout:
-            if config.baud == config.initial_baud:
-                raise
-            log.info("%s: no answer at %d baud, trying %d", self.url, config.initial_baud,
-                     config.baud)
-            self.set_baud(config.baud)
-            self.unlogall(config.unlogall_port)
+    def write_corrections(self, data: bytes) -> None:
+        """Send correction bytes on this port (whole frames: the link's write lock keeps a
+        command's frame out of them); SerialException or OSError when the port is gone."""
+        self._link.write(data)
 
     def shutdown(self, timeout: float = 0.5) -> None:
         """Stop the logs (best effort) and close the port."""

@@ -1,4 +1,4 @@
-"""viena.imu.sample/1 on viena/<car>/imu/<unit>/sample: this module owns the schema.
+"""viena.imu.sample/1 on viena/<car>/imu/<unit>/sample: its schema, its reader and its monitor view.
 
 Calibrated values in SI and the body frame (x right, y forward, z up), plus what the
 firmware sent, unchanged, so the unit can be re-calibrated from any recording.
@@ -6,15 +6,10 @@ firmware sent, unchanged, so the unit can be re-calibrated from any recording.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 from viena.common.display import fmt_num, fmt_vec, norm
 from viena.common.schema import F, Schema
-from viena.services.imu.model.calibration import SampleCalibrator
-from viena.services.imu.model.glitch import MagGlitchFilter
-
-if TYPE_CHECKING:  # the driver's frames, read here without loading the driver (and serial)
-    from viena.services.imu.driver import Reading
 
 SAMPLE = Schema("viena.imu.sample/1", {
     "t": F.time,                       # acquisition time, int ns UTC (estimated, see driver.timing)
@@ -66,31 +61,3 @@ def monitor_view(sample: dict) -> dict[str, str]:
         "|mag| µT": "-" if mag_T is None else f"{mag_T * 1e6:.1f}",
         "seq": fmt_num(sample.get("seq")),
     }
-
-
-class SampleBuilder:
-    """Reading -> sample dict, for one unit."""
-
-    def __init__(self, unit: str, firmware: str, calibrator: SampleCalibrator,
-                 mag_filter: MagGlitchFilter | None = None):
-        self.unit, self.firmware = unit, firmware
-        self.calibrator = calibrator
-        self.mag_filter = mag_filter or MagGlitchFilter()
-
-    def build(self, reading: Reading) -> dict:
-        f = reading.frame
-        cal = self.calibrator
-        mag = cal.mag(f.mag_counts)
-        return {
-            "t": cal.time_ns(reading.t_ns),
-            "seq": reading.seq,
-            "unit": self.unit,
-            "firmware": self.firmware,
-            "accel_mps2": cal.accel(f.accel_g),
-            "gyro_radps": cal.gyro(f.gyro_dps),
-            "mag_T": mag if self.mag_filter.accept(mag) else None,
-            "raw": {"accel_g": list(f.accel_g), "gyro_dps": list(f.gyro_dps),
-                    "mag_counts": list(f.mag_counts),
-                    "euler_deg": None if f.euler_deg is None else list(f.euler_deg)},
-            "board_id": f.board_id,
-        }

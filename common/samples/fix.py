@@ -8,11 +8,7 @@ arrived, ``latency_s`` their difference.
 """
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
-
-import numpy as np
-import pymap3d
 
 from viena.common.display import CORRECTIONS_STALE_S, Alert, fmt_num, norm, number
 from viena.common.schema import F, FieldError, Schema
@@ -204,20 +200,3 @@ NO_FIX_ECEF = (100.0, 0.0, 0.0)
 
 def is_no_fix(position) -> bool:
     return tuple(position) == NO_FIX_ECEF
-
-
-def enu_sigma_to_ecef(sigma_enu, lat_deg: float, lon_deg: float) -> list[float]:
-    """Standard deviations along ECEF axes of independent E, N, U errors."""
-    lat, lon = math.radians(lat_deg), math.radians(lon_deg)
-    sl, cl, sp, cp = math.sin(lon), math.cos(lon), math.sin(lat), math.cos(lat)
-    r = np.array([[-sl, -sp * cl, cp * cl],        # columns: E, N, U in ECEF
-                  [cl, -sp * sl, cp * sl],
-                  [0.0, cp, sp]])
-    cov = r @ np.diag(np.square(sigma_enu)) @ r.T
-    return [float(v) for v in np.sqrt(np.diag(cov))]
-
-
-def enu_to_ecef_velocity(vel_enu, lat_deg: float, lon_deg: float) -> list[float]:
-    u, v, w = pymap3d.enu2uvw(*vel_enu, lat_deg, lon_deg)
-    return [float(u), float(v), float(w)]
-
