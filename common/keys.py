@@ -50,7 +50,7 @@ class Keys:
         """Liveliness token of a running process (for discovery and display only); with no
         service, every token's key (`alive/**`)."""
         if service is None:
-            return f"{self.prefix}/{ALIVE.pattern.split('/')[0]}/**"
+            return self.of(ALIVE, service="**", unit=None)
         return self.of(ALIVE, service=service, unit=unit)
 
     @property

@@ -3,7 +3,7 @@ silence, close, and connect again after a backoff, so data flows again soon afte
 device comes back.
 
 Every device service runs one `DeviceSupervisor` over its own `Device` (the few things a
-supervisor needs from a driver) and reports under the fixed names of common/health.py:
+supervisor needs from a driver) and reports under the fixed names of common/samples/health.py:
 ``reconnects`` (counts), ``connect_failures``, ``port_failures``, ``silences``,
 ``internal_errors`` (errors), ``connected``, ``last_error``, ``port`` (state). The
 supervisor knows neither zenoh nor bytes: the service hands it a `Health`, a

@@ -187,14 +187,14 @@ def _health():
 def test_an_encode_made_while_another_packs_gives_both_their_bytes():
     """A Packer is not re-entrant: an encode run from inside another's pack (a dict
     subclass's items(), a __del__) must not share it."""
-    inner = Schema("test.reentrant.inner/1", {"a": F.any})
+    inner = Schema("viena.test.reentrant.inner/1", {"a": F.any})
 
     class Sneaky(dict):
         def items(self):
             self.inner_bytes = inner.encode({"a": 7})
             return super().items()
 
-    outer = Schema("test.reentrant.outer/1", {"a": F.any})
+    outer = Schema("viena.test.reentrant.outer/1", {"a": F.any})
     value = Sneaky(k=1)
     assert outer.encode({"a": value}) == msgpack.packb({"a": {"k": 1}}, use_bin_type=True)
     assert value.inner_bytes == msgpack.packb({"a": 7}, use_bin_type=True)

@@ -59,7 +59,8 @@ def test_today_s_version_of_every_schema_is_stored():
 
 
 def test_the_store_and_its_index_agree():
-    assert sorted(e["file"] for e in INDEX) == sorted(p.name for p in STORE.glob("*.msgpack"))
+    assert sorted([*(e["file"] for e in INDEX), *(e["minimal_file"] for e in INDEX)]) == sorted(
+        p.name for p in STORE.glob("*.msgpack"))
     assert len({e["schema"] for e in INDEX}) >= 10
     assert {e["schema"] for e in INDEX} <= set(BY_SCHEMA) | set(RETIRED)
 
@@ -70,38 +71,56 @@ def test_readers_are_found():
     assert len(READERS["viena.estimator.state/2"]) >= 2
 
 
+@pytest.mark.parametrize("minimal", [False, True], ids=["every_field", "no_optional_field"])
 @pytest.mark.parametrize("entry", INDEX, ids=lambda e: e["file"].removesuffix(".msgpack"))
-def test_every_earlier_version_is_read_by_today_s_code(entry):
-    payload = stored(entry)
+def test_every_earlier_version_is_read_by_today_s_code(entry, minimal):
+    """Each version as sent with every optional field, and without any (a producer older
+    than the fields): today's schema decodes it, every Reader made on it and its topic's
+    typed reader read it, its monitor view shows it."""
+    payload = (STORE / entry["minimal_file" if minimal else "file"]).read_bytes()
     name = entry["schema"]
     if name in RETIRED:
         # a retired version is still data: replay, export and plot show it as a plain map
         value = decode_value(payload, f"application/msgpack;{name}")
-        assert set(value) == set(entry["shape"])
+        assert set(value) <= set(entry["shape"]) and value
         assert name not in SCHEMAS and RETIRED[name].schema.name in SCHEMAS
         return
     schema = SCHEMAS[name]
     sample = schema.decode(payload)
     for reader in list(READERS.get(name, ())):
         reader(dict(sample))
-    view = BY_SCHEMA[name].view
-    if view is not None:
-        assert isinstance(view(dict(sample)), dict)
+    topic = BY_SCHEMA[name]
+    if topic.read is not None:
+        topic.read(dict(sample))
+    if topic.view is not None:
+        assert isinstance(topic.view(dict(sample)), dict)
+
+
+def test_the_minimal_samples_leave_out_the_optional_fields():
+    fix = next(e for e in INDEX if e["schema"] == "viena.gnss.fix/1" and "diff_age_s" in e["shape"])
+    full = SCHEMAS["viena.gnss.fix/1"].decode(stored(fix))
+    minimal = SCHEMAS["viena.gnss.fix/1"].decode((STORE / fix["minimal_file"]).read_bytes())
+    assert "diff_age_s" in full and "diff_age_s" not in minimal and "ecef_m" in minimal
 
 
 def test_a_required_field_added_without_a_new_version_is_caught():
-    """The test above can fail: the stored fixes lack a field a careless change would require."""
+    """The test above can fail: the stored fixes lack a field a careless change would
+    require, whether new or an optional one made required."""
     fix = SCHEMAS["viena.gnss.fix/1"]
     careless = Schema("viena.test.careless_fix/1", {**fix.fields, "new_field": F.float})
+    required = Schema("viena.test.required_fix/1", {**fix.fields, "diff_age_s": F.float})
     try:
         old = [e for e in INDEX if e["schema"] == "viena.gnss.fix/1"]
         assert len(old) >= 2
         with pytest.raises(SampleError, match="missing field 'new_field'"):
             careless.decode(stored(old[0]))
+        with pytest.raises(SampleError, match="missing field 'diff_age_s'"):
+            required.decode((STORE / old[-1]["minimal_file"]).read_bytes())
         optional = Schema("viena.test.careful_fix/1", {**fix.fields, "new_field": F.optional(F.float)})
         assert optional.decode(stored(old[0]))["seq"] == 7
     finally:
         SCHEMAS.pop("viena.test.careless_fix/1", None)
+        SCHEMAS.pop("viena.test.required_fix/1", None)
         SCHEMAS.pop("viena.test.careful_fix/1", None)
 
 

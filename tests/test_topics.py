@@ -3,6 +3,7 @@ services, tools and access rules take their keys from it, and docs/dataflow.md s
 from __future__ import annotations
 
 import ast
+import importlib
 import re
 from pathlib import Path
 
@@ -18,7 +19,7 @@ PRODUCT = [*sorted((REPO / "common").rglob("*.py")), *sorted((REPO / "services")
 #: where keys may be spelled: the table itself
 TABLE = {REPO / "common" / "samples" / "topics.py"}
 FIRST_CHUNKS = {t.pattern.split("/")[0] for t in TOPICS if not t.pattern.startswith("{")}
-CAR_PREFIX = re.compile(r"^viena/(\{x\}|\{car\}|[a-z0-9_]+)/")
+CAR_PREFIX = re.compile(r"^(viena/[^/]+/|\{prefix\}/)")
 KEY_LIKE = re.compile(r"^[a-z_*{}]+(/[a-z_*{][a-z0-9_*{}]*)+$")
 
 
@@ -42,8 +43,14 @@ def spelled_keys(path: Path, root: Path = REPO) -> list[str]:
         text = None
         if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in skip:
             text = node.value
-        elif isinstance(node, ast.JoinedStr):
-            text = "".join(v.value if isinstance(v, ast.Constant) else "{x}" for v in node.values)
+        elif isinstance(node, ast.JoinedStr):      # an f-string: {keys.prefix}/... is a car's key
+            text = "".join(v.value if isinstance(v, ast.Constant) else
+                           "{prefix}" if "prefix" in ast.unparse(v) else "{x}" for v in node.values)
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "join"
+              and isinstance(node.func.value, ast.Constant) and node.func.value.value == "/"
+              and node.args and isinstance(node.args[0], (ast.Tuple, ast.List))):
+            text = "/".join(e.value if isinstance(e, ast.Constant) and isinstance(e.value, str) else "{x}"
+                            for e in node.args[0].elts)
         if text is not None:
             text = CAR_PREFIX.sub("", text)
         if text is not None and KEY_LIKE.match(text) and text.split("/")[0] in FIRST_CHUNKS:
@@ -62,9 +69,11 @@ def test_no_key_is_spelled_outside_the_table():
 def test_the_check_sees_a_spelled_key(tmp_path):
     bad = tmp_path / "bad.py"
     bad.write_text('"""gnss/gnss0/fix in a docstring is fine."""\nKEY = "steering/estop"\n'
-                   'x = keys.key("pilot", "state")\ny = f"alive/{kind}/{name}"\nz = f"viena/{car}/gnss/*/fix"\n')
+                   'x = keys.key("pilot", "state")\ny = f"alive/{kind}/{name}"\nz = f"viena/{car}/gnss/*/fix"\n'
+                   'a = f"{keys.prefix}/steering/arm"\nb = "/".join(("pilot", "cmd"))\n')
     found = sorted(s.split(" ", 1)[1] for s in spelled_keys(bad, tmp_path))
-    assert found == ["'alive/{x}/{x}'", "'gnss/*/fix'", "'steering/estop'", ".key() of literal parts"]
+    assert found == ["'alive/{x}/{x}'", "'gnss/*/fix'", "'pilot/cmd'", "'steering/arm'", "'steering/estop'",
+                     ".key() of literal parts"]
 
 
 def test_every_topic_is_in_the_doc():
@@ -73,10 +82,15 @@ def test_every_topic_is_in_the_doc():
 
 
 def test_every_schema_that_crosses_a_process_has_its_topic():
-    import viena.common.samples.topics  # noqa: F401  (registers every contract's schema)
-    from viena.common.schema import SCHEMAS
+    """Every schema the contracts room declares travels on a topic of the table."""
+    from viena.common.schema import Schema
 
-    contracts = {n for n in SCHEMAS if not n.startswith(("viena.foxglove.", "viena.test.", "viena.example"))}
+    contracts = set()
+    for path in sorted((REPO / "common" / "samples").glob("*.py")):
+        module = importlib.import_module(f"viena.common.samples.{path.stem}" if path.stem != "__init__"
+                                         else "viena.common.samples")
+        contracts |= {v.name for v in vars(module).values() if isinstance(v, Schema)}
+    assert len(contracts) == 10
     assert contracts == set(topics.BY_SCHEMA)
 
 
@@ -99,7 +113,11 @@ def test_keys_of_units_and_services():
     assert keys.alive() == "viena/elettra/alive/**"
     assert topic_of("sim/health") == (topics.HEALTH, {"service": "sim"})
     assert topic_of("foo/bar") is None
+    assert topics.HEALTH.key(service="sim") == "sim/**/health"      # sim/health, and any unit's
+    assert topics.HEALTH.key() == "*/**/health"
     with pytest.raises(ValueError):
         topics.GNSS_FIX.key(unit="a/b")
+    with pytest.raises(ValueError):                                # a fix's unit is never absent
+        topics.GNSS_FIX.key(unit=None)
     with pytest.raises(TypeError):
         topics.SIM_TRUTH.key(unit="x")

@@ -100,7 +100,7 @@ GNSS_STATUS = Schema("viena.foxglove.gnss_status/1", {
     "valid": F.bool,
     "pos_status": F.str,
     "pos_type": F.str,                  # NovAtel's name: SINGLE, PSRDIFF, NARROW_FLOAT, NARROW_INT ...
-    "kind": F.enum(*SOLUTION_KINDS),    # its class (services/gnss/model/fix.py)
+    "kind": F.enum(*SOLUTION_KINDS),    # its class (common/samples/fix.py)
     "kind_level": F.int,                # the kind's place in SOLUTION_KINDS: 0 none ... 5 fixed
     "diff_age_s": F.optional(F.float),  # age of the corrections in the solution, when it uses any
     "sol_age_s": F.optional(F.float),

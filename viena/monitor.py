@@ -292,7 +292,7 @@ def _rate(aged: Aged | None) -> str:
 def _service_rows(view: View):
     from rich.text import Text
 
-    columns = list(HealthReport().cells())          # what common/health.py shows of a report
+    columns = list(HealthReport().cells())          # what common/samples/health.py shows of a report
     table = _table("services", "service", "status", "errors/s", *columns, "health age")
     for s in view.services:
         style = {"alive": "green", "lost": "bold red", "no token": "yellow"}[s.status]

@@ -13,7 +13,7 @@ Samples are read defensively: a field a source lacks leaves its line out, never 
 picture. Estimator states of either version are read: /2's sigmas (`sigma_h_m`,
 `sigma_v_m`), or /1's variances (`enu_var_m2`).
 
-With a pilot (`viena.pilot.path/1` on pilot/path, services/pilot/model/state.py), the map
+With a pilot (`viena.pilot.path/1` on pilot/path, common/samples/pilot.py), the map
 also shows the route it held, through its checkpoints, in the same ENU frame: the newest
 route bold, any earlier one faint. With its state (pilot/state), the stretches of the
 track where the pilot was following are shaded, and where it stopped is crossed, with why.
@@ -33,9 +33,8 @@ import numpy as np
 from viena.common.errors import InputError, SampleError
 from viena.common.recording import Recording
 from viena.common.samples import topics
+from viena.common.samples.fix import NO_FIX_ECEF
 
-#: No-solution position the NovAtel receivers send (see services/gnss/model/fix.py).
-NO_FIX_ECEF = (100.0, 0.0, 0.0)
 MIN_COURSE_SPEED_MPS = 1.0          # below this a GNSS course over ground is noise
 
 

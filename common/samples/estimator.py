@@ -84,7 +84,7 @@ STATE = Schema("viena.estimator.state/2", {
     "process_noise_scale": F.optional(F.float),     # the adaptive process noise's factor
     "gnss_admission": F.optional(F.map),  # receiver -> "in use", "probation" or "failing <check>"
     # the solution it rests on (issue 28; optional: older states lack them): the best kind
-    # (services/gnss/model/fix.py SOLUTION_KINDS: none, single, sbas, dgps, float, fixed) among
+    # (common/samples/fix.py SOLUTION_KINDS: none, single, sbas, dgps, float, fixed) among
     # the receivers whose fixes went in within gnss_timeout_s, and the age of its corrections now
     "gnss_kind": F.optional(F.str),
     "gnss_diff_age_s": F.optional(F.float),

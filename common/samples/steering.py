@@ -57,7 +57,7 @@ STATE = Schema("viena.steering.state/1", {
     "max_wheel_deg": F.optional(F.float),     # widest target either way at that speed (None: no limit)
     "max_rate_deg_s": F.optional(F.float),    # fastest target rate there (slew or lateral jerk)
     "engaging": F.optional(F.bool),           # the stricter limits of the first seconds after an arm
-    # why it last stopped (model/trips.py TripCause; None: no trip since the arm); optional: older states lack it
+    # why it last stopped (TripCause above; None: no trip since the arm); optional: older states lack it
     "trip_cause": F.optional(F.enum(*(cause.value for cause in TripCause))),
 })
 

@@ -12,6 +12,8 @@ reads to see what flows where.
     'gnss/gnss0/fix'
     >>> GNSS_FIX.key()                         # any unit
     'gnss/*/fix'
+    >>> HEALTH.key(service="sim")              # its own, or any unit's: sim has none
+    'sim/**/health'
     >>> topic_of("gnss/gnss1/fix")
     (Topic('gnss.fix'), {'unit': 'gnss1'})
 """
@@ -63,6 +65,7 @@ class Topic:
     optional: tuple[str, ...] = ()            # placeholders a key may leave out
     retired: tuple[str, ...] = ()             # its schema's earlier names (a version bumped)
     view: object = field(default=None, repr=False, compare=False)     # its monitor view
+    read: object = field(default=None, repr=False, compare=False)     # its typed reader, where it has one
 
     def __repr__(self) -> str:
         return f"Topic({self.name!r})"
@@ -73,8 +76,10 @@ class Topic:
         return tuple(_CHUNK.findall(self.pattern))
 
     def key(self, **chunks: str | None) -> str:
-        """The key after viena/<car>/: each placeholder filled from `chunks`; one not given is
-        any chunk (`*`); one given as None is left out (an `optional` one: a service without units)."""
+        """The key after viena/<car>/: each placeholder filled from `chunks`. One not given is
+        any chunk (`*`), or any number of chunks (`**`) where it is `optional` (a service
+        without units has none); an `optional` one given as None is left out (this
+        process's own key, for a service without units)."""
         unknown = set(chunks) - set(self.chunks)
         if unknown:
             raise TypeError(f"{self.name} has no {', '.join(sorted(unknown))} in {self.pattern!r}")
@@ -83,10 +88,16 @@ class Topic:
             m = _CHUNK.fullmatch(part)
             if m is None:
                 parts.append(part)
-            elif (value := chunks.get(m[1], "*")) is not None:
-                if not value or "/" in value:
-                    raise ValueError(f"{m[1]} of {self.name} must be one key chunk, got {value!r}")
-                parts.append(value)
+                continue
+            name, optional = m[1], m[1] in self.optional
+            value = chunks.get(name, "**" if optional else "*")
+            if value is None:
+                if not optional:
+                    raise ValueError(f"{self.name}: {name} cannot be left out of {self.pattern!r}")
+                continue
+            if not value or "/" in value:
+                raise ValueError(f"{name} of {self.name} must be one key chunk, got {value!r}")
+            parts.append(value)
         return "/".join(parts)
 
     def match(self, relative_key: str) -> dict[str, str] | None:
@@ -120,16 +131,18 @@ SIM_TRUTH = Topic("sim.truth", "sim/truth", Kind.PUT, truth.TRUTH, "viena-sim", 
 GNSS_FIX = Topic("gnss.fix", "gnss/{unit}/fix", Kind.PUT, fix.FIX, "viena-gnss",
                  "the receiver's: 20 Hz (NovAtel BESTXYZ ONTIME 0.05), 10 Hz (NMEA)", 20.0,
                  consumers=("viena-estimator", "viena-steering", "viena-ntrip", "monitor", "record"),
-                 view=fix.monitor_view)
+                 view=fix.monitor_view, read=fix.read_fix)
 GNSS_CORRECTIONS = Topic("gnss.corrections", "gnss/corrections", Kind.PUT, corrections.CORRECTIONS,
                          "viena-ntrip", "one sample per read from the caster, about 1 Hz", 1.0,
-                         consumers=("viena-gnss", "monitor", "record"), view=corrections.monitor_view)
+                         consumers=("viena-gnss", "monitor", "record"), view=corrections.monitor_view,
+                         read=corrections.read_corrections)
 NTRIP_STATE = Topic("ntrip.state", "ntrip/state", Kind.PUT, ntrip.STATE, "viena-ntrip",
                     "1 Hz and at every change", 1.0, consumers=("monitor", "foxglove", "record"),
-                    view=ntrip.monitor_view)
+                    view=ntrip.monitor_view, read=ntrip.read_state)
 IMU_SAMPLE = Topic("imu.sample", "imu/{unit}/sample", Kind.PUT, imu.SAMPLE, "viena-imu",
                    "the firmware's: about 82.5 Hz (VIENA), 50 Hz (stock Razor AHRS)", 82.5,
-                   consumers=("viena-estimator", "monitor", "record"), view=imu.monitor_view)
+                   consumers=("viena-estimator", "monitor", "record"), view=imu.monitor_view,
+                   read=imu.read_sample)
 STEERING_STATE = Topic("steering.state", "steering/state", Kind.PUT, steering.STATE, "viena-steering",
                        "`state_rate_hz`, 50 Hz", 50.0,
                        consumers=("viena-pilot", "viena-sim", "monitor", "record", "plot"),
@@ -161,7 +174,7 @@ PILOT_PATH = Topic("pilot.path", "pilot/path", Kind.PUT, pilot.PATH, "viena-pilo
                    "when taken, then every 5 s", 0.2, latched=True, consumers=("foxglove", "record", "plot"))
 HEALTH = Topic("health", "{service}/{unit}/health", Kind.PUT, health.HEALTH, "every process", "1 Hz", 1.0,
                optional=("unit",), consumers=("monitor", "viena doctor", "foxglove", "record"),
-               view=health.monitor_view)
+               view=health.monitor_view, read=health.HealthReport.of)
 ALIVE = Topic("alive", "alive/{service}/{unit}", Kind.TOKEN, None, "every process", "while the process runs",
               optional=("unit",),
               consumers=("monitor", "viena list", "a second process of the same name, which refuses to start"))

@@ -45,12 +45,3 @@ class Constraints:
         H[1, 3:6] = up                                    # its up axis
         self.counts["nhc"] += 1
         return H, [-(right[0] * ve + right[1] * vn + right[2] * vu), -(up[0] * ve + up[1] * vn + up[2] * vu)], R
-
-    def apply_alone(self, kf, attitude, heading, still: bool, tilt_right_var: float):
-        """The constraints on their own, when no fix has carried them lately: the
-        correction made (None if there were none to apply)."""
-        rows = self.rows(kf, attitude, heading, still, tilt_right_var)
-        if rows is None:
-            kf.flush()
-            return None
-        return kf.update(*rows)[2]

@@ -18,7 +18,7 @@ This class only wires the parts together, one idea each (docs/estimator.md#the-p
     standstill.py   is the car standing, and the gyro's bias while it is
     constraints.py  zero velocity and the non-holonomic pseudo-measurements
     navigation.py   the half of this class that changes the filters: the IMU step, and
-                    what the GNSS side decided applied (no other part mutates them)
+                    what the GNSS side decided applied (no other part updates the Kalman filter)
     kalman.py       the Kalman filter: position, velocity, accelerometer bias (kalman_update.py)
     history.py      the last second of the trajectory, for late fixes
     gnss_update.py  a fix into the filters: admit, measure, update, judge; it decides

@@ -11,7 +11,12 @@
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:                       # the estimator hands itself in: types only, no cycle
+    from viena.services.estimator.estimator import Estimator
 
 #: a receiver's velocity refused this many times in a row: its course is used anyway
 COURSE_AFTER_REFUSALS = 3
@@ -37,7 +42,7 @@ class Courses:
         self.vel_refused: dict[str, int] = {}
         self.positions = PositionCourse()
 
-    def use(self, nav, fix, z, arm, white_cov, vel, velR, nu_v, vel_ok: bool, yaw, course_var: float,
+    def use(self, nav: Estimator, fix, z, arm, white_cov, vel, velR, nu_v, vel_ok: bool, yaw, course_var: float,
             imu_mode: bool) -> None:
         """A fix's velocity (covariance velR, innovation nu_v, taken or not; yaw then) or,
         for a receiver without one, its position z less the arm: a course for `nav`'s

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -46,6 +47,9 @@ from viena.services.estimator.gnss_judgement import IMU_CONTRADICTED_MPS, Disagr
 from viena.services.estimator.gnss_noise import WhiteShare
 from viena.services.estimator.kalman_update import Diverged
 from viena.services.estimator.timing import OffsetHint
+
+if TYPE_CHECKING:                       # the estimator holds this part: types only, no cycle
+    from viena.services.estimator.estimator import Estimator
 
 #: a receiver's positions refused while its velocity agrees are its own doing for this long
 #: (s: a multipath burst lasts up to half a minute) before the filter widens or resets
@@ -79,7 +83,7 @@ class GnssUpdate:
     """The estimator's GNSS side: it reads `est`, the Estimator, and decides; what changes
     the filters it asks of the Estimator's `Navigation` half (navigation.py)."""
 
-    def __init__(self, est) -> None:
+    def __init__(self, est: Estimator) -> None:
         self.est = est
         s = self.settings = est.settings
         self.lever_default, self.levers = gnss_judgement.lever_arms(s)

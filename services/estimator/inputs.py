@@ -1,7 +1,7 @@
 """What the estimator accepts: IMU samples and GNSS fixes, read through their schemas.
 
 The schema modules read a decoded sample into a typed one (`read_sample` in
-services/imu/model/sample.py, `read_fix` in services/gnss/model/fix.py), checking each
+common/samples/imu.py, `read_fix` in common/samples/fix.py), checking each
 field the estimator reads with the schema's own checks; a sample from any source will do
 (README, "Estimator"). Here come the estimator's own limits on top: the sensors' ranges, a
 position near the Earth, sigmas that mean something, a velocity that is not history. A

@@ -36,14 +36,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from viena.services.estimator.kalman_update import B_, P_, T_, V_, Diverged, KalmanUpdates
+from viena.services.estimator.kalman_update import _I3, B_, P_, T_, V_, Diverged, KalmanUpdates
 
-#: the core states: position, velocity, accelerometer bias
+#: the core states (position, velocity, accelerometer bias: P_, V_, B_ in kalman_update.py)
 N = 9
 #: what drove the mean since the covariance last moved: nothing known, the IMU's vertical
 #: acceleration only (the yaw unknown), the IMU's whole
 FREE, VERTICAL, FULL = 0, 1, 2
-_I3 = np.eye(3)
 
 
 @dataclass

@@ -2,8 +2,10 @@
 
 `Navigation` is the half of `Estimator` (estimator.py) that changes the filters: the
 attitude, the Kalman filter and the trajectory history move with each IMU sample here,
-and the corrections the GNSS side decides (gnss_update.py) are applied here. The parts
-themselves only read values and return what should change.
+and the corrections the GNSS side decides (gnss_update.py) and the constraints' rows are
+applied here; no other part updates the Kalman filter. The heading and standstill parts
+move the attitude through their own methods (the yaw once the heading is learnt, the
+gyro's bias while the car stands).
 """
 from __future__ import annotations
 
@@ -292,7 +294,9 @@ class Navigation:
         if aided and att.beta_aided == 0.0 and self._mag is not None and att.use_mag \
                 and att.mag_plausible(self._mag, fx, fy, fz):
             self.heading.magnetometer(self._mag, self.history)
-        if t - c.last_t >= c.interval_ns:
-            dx = self.constraints.apply_alone(self.kf, att, self.heading, self.standstill.still, self.tilt_var()[1])
-            if dx is not None:
-                self.corrected(dx)
+        if t - c.last_t >= c.interval_ns:          # no fix carried them lately: on their own
+            rows = c.rows(self.kf, att, self.heading, self.standstill.still, self.tilt_var()[1])
+            if rows is None:
+                self.kf.flush()
+            else:
+                self.corrected(self.kf.update(*rows)[2])

@@ -1,4 +1,4 @@
-"""How each receiver's logs become viena.gnss.fix/1 samples (the schema is model/fix.py).
+"""How each receiver's logs become viena.gnss.fix/1 samples (the schema is common/samples/fix.py).
 
 NovAtel: BESTXYZ is a fix on its own; BESTPOS (geodetic) is joined with the BESTVEL of
 the same epoch when that log is requested too. NMEA: one epoch (GGA + RMC/VTG + GSA) is

@@ -10,10 +10,10 @@ a key. The driver (driver/client.py) connects, reads and reconnects as casters a
 two attempts less than 10 s apart, then backing off to `retry_max_s`); this process
 publishes:
 
-- `gnss/corrections` (viena.gnss.corrections/1, model/corrections.py): each read's whole
+- `gnss/corrections` (viena.gnss.corrections/1, common/samples/corrections.py): each read's whole
   checked RTCM 3 frames (format RTCMV3), or its bytes as they came (RAW), which the GNSS
   services write to their receivers;
-- `ntrip/state` (viena.ntrip.state/1, model/state.py): at 1 Hz and at every change, what
+- `ntrip/state` (viena.ntrip.state/1, common/samples/ntrip.py): at 1 Hz and at every change, what
   the link does and why it does not stream;
 - `ntrip/health`: counters for every kind of bad input (unauthorized, mountpoint_unknown,
   html_answers, connection_refused, garbage_bytes, crc_errors, silences, ...), and

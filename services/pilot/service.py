@@ -9,7 +9,7 @@ Keys (relative to viena/<car>/; payloads JSON text or msgpack, replies in the qu
   `{"status": "rejected", "reason": ...}`.
 - `pilot/cmd`, query or put: `{"cmd": "start"}` / `{"cmd": "stop"}` (or the bare word).
   Reply `{"status", "reason", "mode"}`.
-- `pilot/state`, 20 Hz: `viena.pilot.state/1` (model/state.py).
+- `pilot/state`, 20 Hz: `viena.pilot.state/1` (common/samples/pilot.py).
 - `pilot/path`: `viena.pilot.path/1`, the route held, when taken and every 5 s (for
   recordings, plots and maps).
 

@@ -31,7 +31,7 @@ def test_a_service_is_alive_while_its_token_is_and_lost_after():
     model.sample("viena/elettra/gnss/gnss0/health", HEALTH, now=10.5, schema="viena.health/1")
     [s] = model.view(now=11.0).services
     assert (s.name, s.status) == ("gnss/gnss0", "alive")
-    report = s.report                                     # common/health.py reads the health
+    report = s.report                                     # common/samples/health.py reads the health
     assert report.rates_hz == {"fix": 20.0} and report.errors == {"timeout": 3.0}
     assert report.reconnects == 2 and report.last_sample_age_s == 0.04
     assert report.uptime_s == pytest.approx(12.5) and not s.health.stale
