@@ -96,6 +96,9 @@ ROLES: dict[str, Role] = {
                   subscribe=("**",), command=(*STEERING_COMMANDS, *PILOT_COMMANDS),
                   publish=(*STEERING_INPUTS, *PILOT_COMMANDS),
                   token=_token("pilot", "{name}"), liveliness=True),
+    "recorder": Role("the black box: reads every key, publishes its own health",
+                     subscribe=("**",), publish=(T.HEALTH.key(service="recorder", unit=None),),
+                     token=_token("recorder")),
     "observer": Role("anyone else on the car: watches everything and may stop the car",
                      subscribe=("**",), publish=(ESTOP,), liveliness=True),
 }

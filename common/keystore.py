@@ -74,7 +74,7 @@ TAG_DIGITS = 16
 STANDARD_IDENTITIES = {
     "gnss0": "gnss", "gnss1": "gnss", "razor0": "imu", "steering": "steering",
     "estimator": "estimator", "sim": "sim", "autopilot": "autopilot", "pilot": "pilot",
-    "observer": "observer", "ntrip": "ntrip",
+    "observer": "observer", "ntrip": "ntrip", "recorder": "recorder",
 }
 CA_DAYS = 3650
 ROUTER_DAYS = 1825

@@ -23,3 +23,12 @@ def compose_dir() -> Path:
 
 def router_config() -> Path:
     return compose_dir() / "zenoh" / "router.json5"
+
+
+def drives_dir() -> Path:
+    """Where the black box keeps its drives unless told: $VIENA_DRIVES, else
+    ~/.local/share/viena/drives ($XDG_DATA_HOME respected)."""
+    if os.environ.get("VIENA_DRIVES"):
+        return Path(os.environ["VIENA_DRIVES"]).expanduser()
+    base = os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share"
+    return Path(base) / "viena" / "drives"

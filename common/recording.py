@@ -15,13 +15,19 @@ Reading is forgiving on purpose: a recording cut short (recorder killed, disk fu
 damaged is read as far as it can be. A damaged chunk is skipped and the reading goes on;
 a broken file structure ends it. `Recording.problems` and `Recording.stopped` say what
 happened and where, in bytes and in seconds into the drive.
+
+The black box splits a drive into numbered files (`viena-20260501-101203_0001.mcap`, ...),
+each one replayable alone; `Drive` reads them as one, and `open_source` turns what a
+person names (a file, a directory, a drive id) into what to read.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
+import re
 import struct
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -416,3 +422,180 @@ def repair(path: str | Path, output: str | Path | None = None) -> tuple[Path, in
         writer.discard()
         raise
     return done, writer.samples, source.report()
+
+
+#: a drive's files (one run of the recorder, split): DIR/<drive>_<NNNN>.mcap, `.part` while open,
+#: NNNN from 0001, <drive> = viena-YYYYMMDD-HHMMSS (the run's UTC start) with -2, -3, ... if the name was taken
+DRIVE_ID = re.compile(r"viena-\d{8}-\d{6}(?:-\d+)?")
+DRIVE_FILE = re.compile(rf"(?P<drive>{DRIVE_ID.pattern})_(?P<number>\d{{4,}})\.mcap(?P<open>\.part)?")
+
+
+def drive_file(path: str | Path) -> tuple[str, int] | None:
+    """(drive id, file number) of a drive's file name; None for any other name."""
+    found = DRIVE_FILE.fullmatch(Path(path).name)
+    return None if found is None else (found["drive"], int(found["number"]))
+
+
+def find_drives(directory: str | Path) -> dict[str, list[Path]]:
+    """The drives in `directory`, oldest first: id -> its files in order. A file both closed
+    and `.part` (a repair cut short) counts once, closed."""
+    drives: dict[str, dict[int, Path]] = {}
+    try:
+        paths = sorted(Path(directory).iterdir())
+    except OSError as exc:
+        raise RecordingError(f"{directory}: {exc.strerror}") from None
+    for path in paths:
+        found = drive_file(path)
+        if found is not None:
+            files = drives.setdefault(found[0], {})
+            if found[1] not in files or not path.name.endswith(".part"):
+                files[found[1]] = path
+    return {d: [files[n] for n in sorted(files)] for d, files in sorted(drives.items(), key=_drive_order)}
+
+
+def _drive_order(item: tuple[str, object]) -> tuple[str, int]:
+    return drive_order(item[0])
+
+
+def drive_order(drive_id: str) -> tuple[str, int]:
+    """Oldest first: by start, then the `-n` of drives started in the same second (-2 before -10)."""
+    start = len("viena-YYYYMMDD-HHMMSS")
+    return drive_id[:start], int(drive_id[start + 1:] or 1)
+
+
+class Drive:
+    """One run of the recorder, read as one recording: its numbered files in order.
+
+    The same reading interface as `Recording` (messages, problems, stopped, complete,
+    count, first and last log time, metadata, report), so replay, export and info take
+    either. File n > 1 opens with the latched topics' last samples under their original
+    log times; they are skipped here (any message of a later file whose log time is not
+    after the last one read from the files before it), so each sample comes once and
+    the log times run on across files. A file read alone still has them.
+    """
+
+    def __init__(self, drive_id: str, files: list[Path], note: str | None = None):
+        if not files:
+            raise RecordingError(f"drive {drive_id}: no files")
+        self.id, self.files, self.note = drive_id, list(files), note
+        self.path = self.files[0].parent / drive_id
+        self.metadata: dict[str, str] = {}
+        self.problems: list[str] = []
+        self.stopped: str | None = None
+        self.complete = False
+        self.count = 0
+        self.repeats = 0
+        self.first_log_time: int | None = None
+        self.last_log_time: int | None = None
+
+    @classmethod
+    def in_directory(cls, directory: str | Path, drive_id: str | None = None) -> Drive:
+        """The drive `drive_id` of `directory`, else its only one, else its newest (`note`
+        then says which, and how to pick another)."""
+        drives = find_drives(directory)
+        if drive_id is not None:
+            if drive_id not in drives:
+                have = ", ".join(drives) or "none"
+                raise RecordingError(f"{directory}: no drive {drive_id} (drives there: {have})")
+            return cls(drive_id, drives[drive_id])
+        if not drives:
+            raise RecordingError(f"{directory}: no drive in it (files named viena-YYYYMMDD-HHMMSS_NNNN.mcap)")
+        newest = list(drives)[-1]
+        note = None if len(drives) == 1 else (
+            f"{directory} holds {len(drives)} drives: reading the newest, {newest} (--drive ID for another; "
+            f"`viena record list {directory}` lists them)")
+        return cls(newest, drives[newest], note)
+
+    @property
+    def size(self) -> int:
+        return sum(_size(p) for p in self.files)
+
+    @property
+    def cut_short(self) -> bool:
+        """Its last file is still `.part`: being written, or the recorder stopped without closing it."""
+        return self.files[-1].name.endswith(".part")
+
+    def messages(self, keys: KeyFilter | None = None) -> Iterator[Recorded]:
+        """Every readable sample of every file, in order, each once."""
+        self.metadata, self.problems, self.stopped = {}, [], None
+        self.count, self.repeats, self.first_log_time, self.last_log_time = 0, 0, None, None
+        stops: list[str] = []
+        complete = True
+        for number, path in enumerate(self.files):
+            try:
+                recording = Recording(path)
+            except RecordingError as exc:
+                self.problems.append(str(exc))
+                complete = False
+                continue
+            after = self.last_log_time if number else None
+            yield from self._new(recording.messages(), keys, after)
+            self._took(recording)
+            complete = complete and recording.complete
+            self.problems.extend(f"{path.name}: {line}" for line in recording.problems)
+            if recording.stopped:
+                stops.append(f"{path.name}: {recording.stopped}")
+        self.stopped = "; ".join(stops) or None
+        self.complete = complete and not self.cut_short
+
+    def _new(self, messages: Iterator[Recorded], keys: KeyFilter | None, after: int | None) -> Iterator[Recorded]:
+        """The messages after log time `after` (all if None), for the keys `keys` keeps.
+        The key filter comes after the repeat test: what repeats is the file's, not the filter's."""
+        for m in messages:
+            if after is not None and m.log_time <= after:
+                self.repeats += 1
+                continue
+            self.count += 1
+            if self.first_log_time is None:
+                self.first_log_time = m.log_time
+            if self.last_log_time is None or m.log_time > self.last_log_time:
+                self.last_log_time = m.log_time
+            if keys is None or keys(m.key):
+                yield m
+
+    def _took(self, recording: Recording) -> None:
+        if not self.metadata and recording.metadata:
+            self.metadata = {k: v for k, v in recording.metadata.items() if k != "part"}
+
+    def report(self) -> list[str]:
+        """What a person should know after reading: problems, then where files stopped."""
+        return [*self.problems, *([self.stopped] if self.stopped else [])]
+
+
+#: what replay, export and info read: one file, or a drive of several as one
+Source = Recording | Drive
+
+
+def _size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
+def open_source(target: str | Path, drive_id: str | None = None,
+                say: Callable[[str], object] | None = None) -> Source:
+    """What a tool was asked to read: a file means that file alone (`.mcap` or `.mcap.part`);
+    a directory means a whole drive in it (`drive_id`, its only one, or its newest: then
+    `say` is told which); a drive id (`viena-20260501-101203`, or DIR/viena-20260501-101203)
+    means that whole drive."""
+    path = Path(target)
+    if path.is_dir():
+        drive = Drive.in_directory(path, drive_id)
+        if drive.note and say is not None:
+            say(drive.note)
+        return drive
+    if not path.exists() and DRIVE_ID.fullmatch(path.name):
+        return Drive.in_directory(path.parent, path.name)
+    if drive_id is not None:
+        raise RecordingError(f"{target}: --drive picks a drive in a directory; this is one file")
+    return Recording(path)
+
+
+def add_drive_arguments(parser: argparse.ArgumentParser) -> None:
+    """The recording a tool reads (see `open_source`), as `file` and `drive`."""
+    parser.add_argument("file", metavar="RECORDING",
+                        help="one MCAP file (read alone), or a drive of several files read as one: "
+                             "its directory or its id (viena-YYYYMMDD-HHMMSS)")
+    parser.add_argument("--drive", metavar="ID",
+                        help="with a directory of several drives: which one (default the newest)")

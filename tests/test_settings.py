@@ -32,7 +32,7 @@ def read(cls, toml: dict, *flags: str, unit: str | None = None):
 
 
 def test_every_service_is_found():
-    assert set(SERVICES) == {"estimator", "gnss", "imu", "ntrip", "pilot", "sim", "steering"}
+    assert set(SERVICES) == {"estimator", "gnss", "imu", "ntrip", "pilot", "recorder", "sim", "steering"}
 
 
 def test_the_service_readmes_show_the_settings_as_declared():

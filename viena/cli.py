@@ -31,7 +31,7 @@ from viena import compose
 from viena.common.session import add_version_flag
 
 BENCHES = ["sim", "gnss", "imu", "steering", "steering_envelope", "estimator", "laptop", "security", "faults", "fleet",
-           "foxglove", "pilot", "lockstep", "ntrip", "rtk"]
+           "foxglove", "pilot", "lockstep", "ntrip", "rtk", "blackbox"]
 
 #: commands that live in their own module, each with build_parser(parser) and run(args);
 #: a module that is not there (a tool not written yet) is left out of the command list
@@ -54,6 +54,9 @@ TOOLS = {
     "settings": ("viena.settings_cli", "every setting of a service: type, default, meaning"),
     "sim": ("viena.sim_run", "closed-loop drives in virtual time: scenarios, a Monte-Carlo table"),
 }
+#: `viena TOOL SUB ...` run by a module of its own: the tool's own arguments are free words
+#: (`viena record [KEYEXPR ...]`), so its parser cannot tell a subcommand from them
+SUBTOOLS = {("record", "list"): ("viena.record_list", "the drives the black box recorded: span, distance, size")}
 #: one program of a profile: `viena ACTION NAME`
 PROGRAM_ACTIONS = {
     "logs": "a program's log (-f: follow it)",
@@ -99,8 +102,11 @@ def _add_profile_commands(cmds) -> None:
     p.add_argument("--rtk", action="store_true",
                    help="with the corrections chain: the NTRIP client (viena-ntrip) and, in the sim, the "
                         "caster's twin; the receivers take its RTCM 3 (docs/sensors.md#corrections)")
+    p.add_argument("--record", action="store_true",
+                   help="with the black box (viena-recorder: every key into a drive of split files, "
+                        "services/recorder/README.md); the pi profile runs it always")
     p.set_defaults(func=lambda a: compose.up(a.profile, a.detach, a.free_ports,
-                                             a.secure, a.insecure, a.keys, a.rtk))
+                                             a.secure, a.insecure, a.keys, a.rtk, a.record))
 
     p = cmds.add_parser("down", help="stop a running profile and everything in it")
     _profile_arg(p, None)
@@ -148,6 +154,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
                             formatter_class=argparse.RawDescriptionHelpFormatter)
         module.build_parser(p)
         p.set_defaults(func=module.run)
+        p.epilog = "\n".join(f"viena {name} {sub} --help: {text}" for (tool, sub), (_, text) in SUBTOOLS.items()
+                              if tool == name) or None
     from viena import pilot_cli  # two commands with subcommands: route, pilot
     pilot_cli.add_commands(cmds)
 
@@ -190,6 +198,10 @@ def _bench(args) -> int:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     command = next((a for a in argv if not a.startswith("-")), "")   # "" for `viena --help`
+    at = argv.index(command) if command else 0
+    subtool = SUBTOOLS.get((command, argv[at + 1] if at + 1 < len(argv) else ""))
+    if subtool is not None:
+        return importlib.import_module(subtool[0]).main(argv[at + 2:])
     args = build_parser(command).parse_args(argv)
     try:
         return args.func(args) or 0

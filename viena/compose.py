@@ -42,6 +42,7 @@ from viena.profile_security import programs as programs_in
 
 DEFAULT_PROFILE = "sim"
 _PORT_VAR = re.compile(r"(?:%\(ENV_|\$\{)(VIENA_[A-Z0-9_]*PORT)(?:\)s|:-(\d+)\}|\})")
+_RECORD_ALWAYS = re.compile(r"^record\s*=\s*true\b", re.M)
 _LINK_DEFAULT = re.compile(r"\$\{VIENA_LINK:-(tls|tcp)\}")
 _SETTINGS_VAR = re.compile(r"\$\{([A-Z][A-Z0-9_]*)")
 
@@ -81,6 +82,12 @@ def link_default(profile: str) -> str:
     return m.group(1) if m else "tcp"
 
 
+def records_always(profile: str) -> bool:
+    """Whether the profile's settings run the black box always (`record = true`)."""
+    path = compose_dir() / f"{profile}.toml"
+    return bool(_RECORD_ALWAYS.search(path.read_text())) if path.exists() else False
+
+
 def environment(profile: str, free_ports: bool = False) -> dict[str, str]:
     """The variables a profile's files refer to; the caller's environment wins."""
     env = {
@@ -91,6 +98,9 @@ def environment(profile: str, free_ports: bool = False) -> dict[str, str]:
         "VIENA_LINK": os.environ.get("VIENA_LINK") or link_default(profile),
         # the corrections chain (programs/ntrip.ini, caster.ini): off unless `up --rtk`
         "VIENA_RTK": "false",
+        # the black box (programs/recorder.ini): on where the settings say `record = true`
+        # (the pi profile), else when `up --record`
+        "VIENA_RECORD": "true" if records_always(profile) else "false",
     }
     settings = compose_dir() / f"{profile}.toml"
     named = _SETTINGS_VAR.findall(settings.read_text()) if settings.exists() else []
@@ -143,13 +153,16 @@ def _supervisor_env(env: dict[str, str]) -> dict[str, str]:
 
 
 def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = False,
-       secure: bool = False, insecure: bool = False, keys: str | None = None, rtk: bool = False) -> int:
+       secure: bool = False, insecure: bool = False, keys: str | None = None, rtk: bool = False,
+       record: bool = False) -> int:
     conf = profile_file(profile)
     if supervisord_pid(profile):
         raise ComposeError(f"profile '{profile}' is already up: `viena down --profile {profile}` first")
     env = environment(profile, free_ports)
     if rtk:
         env.update(rtk_environment(env))
+    if record:
+        env["VIENA_RECORD"] = "true"
     try:
         env.update(secure_environment(conf, env, secure, insecure, keys))
     except SecurityRefusal as exc:

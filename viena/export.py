@@ -6,7 +6,8 @@ sample: log_time_ns, publish_time_ns, then the sample's fields, nested ones flat
 with dots (ecef_m.0, ecef_m.1, raw.accel_g.2, rates_hz.truth). A field a sample lacks is
 an empty cell. --json writes JSON lines {key, schema, log_time_ns, publish_time_ns, value}
 to FILE (default stdout). Like replay, export reads a damaged recording as far as it can
-and says where it stopped.
+and says where it stopped. A drive of the black box (its directory or its id) is exported
+as one recording, each sample once; one of its files alone is exported alone.
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from typing import Any
 
 from viena.common.errors import InputError, SampleError
 from viena.common.payload import to_jsonable
-from viena.common.recording import KeyFilter, Recording
+from viena.common.recording import KeyFilter, Source, add_drive_arguments, open_source
 
 TIME_COLUMNS = ["log_time_ns", "publish_time_ns"]
 
@@ -65,7 +66,7 @@ class Undecodable:
         return [f"{n} undecodable samples on {key} skipped" for key, n in sorted(self.by_key.items())]
 
 
-def _rows(recording: Recording, keys: KeyFilter, bad: Undecodable):
+def _rows(recording: Source, keys: KeyFilter, bad: Undecodable):
     for msg in recording.messages(keys):
         try:
             value = msg.value()
@@ -75,7 +76,7 @@ def _rows(recording: Recording, keys: KeyFilter, bad: Undecodable):
         yield msg, value
 
 
-def export_csv(recording: Recording, directory: Path, keys: KeyFilter) -> dict[str, int]:
+def export_csv(recording: Source, directory: Path, keys: KeyFilter) -> dict[str, int]:
     """Two passes: the first learns each key's columns (fields appear and disappear as
     producers change), the second writes. Returns rows written per key."""
     columns: dict[str, dict[str, None]] = {}
@@ -104,7 +105,7 @@ def export_csv(recording: Recording, directory: Path, keys: KeyFilter) -> dict[s
     return counts
 
 
-def export_json(recording: Recording, out, keys: KeyFilter) -> int:
+def export_json(recording: Source, out, keys: KeyFilter) -> int:
     bad, n = Undecodable(), 0
     for msg, value in _rows(recording, keys, bad):
         out.write(json.dumps({"key": msg.key, "schema": msg.schema or None,
@@ -117,7 +118,7 @@ def export_json(recording: Recording, out, keys: KeyFilter) -> int:
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="viena export", description=__doc__)
-    parser.add_argument("file", help="the recording (an MCAP file from viena record)")
+    add_drive_arguments(parser)
     what = parser.add_mutually_exclusive_group(required=True)
     what.add_argument("--csv", metavar="DIR", type=Path, help="one CSV file per key into DIR")
     what.add_argument("--json", metavar="FILE", nargs="?", const="-",
@@ -133,9 +134,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     return parser
 
 
-def _export_foxglove(recording: Recording, output: Path | None, keys: KeyFilter) -> None:
+def _export_foxglove(recording: Source, output: Path | None, keys: KeyFilter) -> None:
     from viena.foxglove_export import default_output, export_foxglove
 
+    # export_foxglove reads what a Source has (messages, metadata, path): a drive as a file
     done = export_foxglove(recording, output or default_output(recording.path), keys)
     print(f"exported {done.samples} samples as {done.messages} Foxglove messages into {done.path}",
           file=sys.stderr)
@@ -146,7 +148,7 @@ def _export_foxglove(recording: Recording, output: Path | None, keys: KeyFilter)
 def run(args: argparse.Namespace) -> int:
     try:
         keys = KeyFilter(args.keyexpr)
-        recording = Recording(args.file)
+        recording = open_source(args.file, args.drive, say=lambda note: print(f"viena export: {note}", file=sys.stderr))
         if args.format == "foxglove":
             _export_foxglove(recording, args.output, keys)
         elif args.csv is not None:

@@ -19,7 +19,7 @@ from pathlib import Path
 import foxglove
 from foxglove.mcap import MCAPWriteOptions
 
-from viena.common.recording import METADATA_NAME, KeyFilter, Recording
+from viena.common.recording import METADATA_NAME, KeyFilter, Source
 from viena.foxglove_channels import FoxgloveChannels
 
 PROFILE = "viena-foxglove"
@@ -109,7 +109,7 @@ def default_output(source: str | Path) -> Path:
     return source.with_name(source.name.removesuffix(".part").removesuffix(".mcap") + "-foxglove.mcap")
 
 
-def export_foxglove(recording: Recording, output: str | Path, keys: KeyFilter | None = None) -> Exported:
+def export_foxglove(recording: Source, output: str | Path, keys: KeyFilter | None = None) -> Exported:
     output = Path(output)
     if output.resolve() == recording.path.resolve():
         raise IsADirectoryError(17, "the export needs a name of its own", str(output))

@@ -1,4 +1,5 @@
-"""`viena info drive.mcap`: what a recording holds, as `ros2 bag info` says it.
+"""`viena info RECORDING`: what a recording holds, as `ros2 bag info` says it. RECORDING is one
+file, or a drive of the black box (its directory or id) taken whole, each sample once.
 
     file      drive.mcap (4.1 MB, complete)
     recorded  2026-05-01T10:12:03+00:00 on viena-pi: `viena record viena/**`, car elettra
@@ -28,7 +29,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 
 from viena.common.errors import InputError, SampleError
-from viena.common.recording import Recording, decode_value, human_bytes
+from viena.common.recording import Drive, Source, add_drive_arguments, decode_value, human_bytes, open_source
 from viena.common.samples.topics import topic_of_key
 from viena.hz import CorrectionsMix, SolutionMix, content_mix
 from viena.tool import Fail, guarded
@@ -57,7 +58,7 @@ class KeyStats:
         return (self.count - 1) / ((self.last_ns - self.first_ns) / 1e9)
 
 
-def summarize(recording: Recording) -> dict[str, KeyStats]:
+def summarize(recording: Source) -> dict[str, KeyStats]:
     """Per key: schema, count, bytes and span, read through the whole file; and what the
     fixes and corrections carried."""
     keys: dict[str, KeyStats] = {}
@@ -86,9 +87,16 @@ def _utc(ns: int | None, fmt: str = "%Y-%m-%d %H:%M:%S.%f") -> str:
     return datetime.fromtimestamp(ns / 1e9, UTC).strftime(fmt)[:-3]
 
 
+def _drive_fields(recording: Source) -> dict:
+    """For a drive: its id and files (a file alone has neither)."""
+    if not isinstance(recording, Drive):
+        return {}
+    return {"drive": recording.id, "files": [str(p) for p in recording.files], "cut_short": recording.cut_short}
+
+
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="viena info", description=__doc__)
-    parser.add_argument("file", help="the recording (an MCAP file from viena record)")
+    add_drive_arguments(parser)
     parser.add_argument("--json", action="store_true", help="the same as one JSON object")
     return parser
 
@@ -99,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     try:
-        recording = Recording(args.file)
+        recording = open_source(args.file, args.drive, say=lambda note: print(f"viena info: {note}", file=sys.stderr))
         keys = summarize(recording)
     except InputError as exc:
         raise Fail(str(exc), 2) from None
@@ -108,8 +116,8 @@ def _run(args: argparse.Namespace) -> int:
     problems = recording.report()
     if args.json:
         print(json.dumps({
-            "file": str(recording.path), "bytes": recording.size, "complete": recording.complete,
-            "metadata": recording.metadata, "start_ns": first, "end_ns": last,
+            "file": str(recording.path), **_drive_fields(recording), "bytes": recording.size,
+            "complete": recording.complete, "metadata": recording.metadata, "start_ns": first, "end_ns": last,
             "duration_s": duration_s, "samples": recording.count, "problems": problems,
             "keys": {k: {"schema": s.schema, "count": s.count, "bytes": s.bytes, "rate_hz": s.rate_hz,
                          "nominal_hz": nominal_hz(k),
@@ -119,6 +127,9 @@ def _run(args: argparse.Namespace) -> int:
     meta = recording.metadata
     state = "complete" if recording.complete and not problems else "INCOMPLETE: see below"
     print(f"file      {recording.path} ({human_bytes(recording.size)}, {state})")
+    if isinstance(recording, Drive):
+        print(f"drive     {recording.id}: {len(recording.files)} files, {recording.repeats} latched repeats "
+              f"read once{', cut short (last file .part)' if recording.cut_short else ''}")
     if meta:
         print(f"recorded  {meta.get('started', '?')} on {meta.get('host', '?')}: "
               f"`viena record {meta.get('keyexprs', '')}`, car {meta.get('car', '?')}")

@@ -112,7 +112,7 @@ def _init(store: KeyStore, args) -> int:
 
 
 #: what the Pi runs (compose/pi.conf): the router and the car's own processes
-CAR_IDENTITIES = ("router", "gnss0", "gnss1", "razor0", "steering", "estimator", "autopilot")
+CAR_IDENTITIES = ("router", "gnss0", "gnss1", "razor0", "steering", "estimator", "autopilot", "recorder")
 RESTART = ("zenoh reads access control only when the router starts: carry the store to the car "
            "(`viena keys export ... --force`) and restart the router there (`viena restart router`)")
 

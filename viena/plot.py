@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from viena.common.errors import InputError, SampleError
-from viena.common.recording import Recording
+from viena.common.recording import Source, add_drive_arguments, open_source
 from viena.common.samples import topics
 from viena.common.samples.fix import NO_FIX_ECEF
 
@@ -139,7 +139,7 @@ def _kind(key: str, schema: str) -> str:
     return topic.name if topic is not None and topic.name in PLOTTED else ""
 
 
-def load_drive(recording: Recording) -> Drive:
+def load_drive(recording: Source) -> Drive:
     """Two passes: the first finds the drive's start and the map's origin, the second
     gathers the series (positions as ECEF, turned into map coordinates in one go)."""
     drive = Drive()
@@ -554,20 +554,20 @@ def direction_arrows(xy: np.ndarray, count: int) -> list[tuple[np.ndarray, np.nd
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="viena plot", description=__doc__)
-    parser.add_argument("file", help="the recording (an MCAP file from viena record)")
+    add_drive_arguments(parser)
     parser.add_argument("-o", "--output", metavar="PNG", type=Path, default=None,
                         help="the picture to write (default: the recording's name with .png)")
     return parser
 
 
 def run(args: argparse.Namespace) -> int:
-    output = args.output or Path(args.file).with_suffix(".png")
     try:
-        recording = Recording(args.file)
+        recording = open_source(args.file, args.drive, say=lambda note: print(f"viena plot: {note}", file=sys.stderr))
         drive = load_drive(recording)
     except InputError as exc:
         print(f"viena plot: {exc}", file=sys.stderr)
         return 2
+    output = args.output or recording.path.with_suffix(".png")
     for line in recording.report():
         print(f"viena plot: {recording.path}: {line}", file=sys.stderr)
     if drive.empty():
@@ -580,7 +580,7 @@ def run(args: argparse.Namespace) -> int:
     counts = ", ".join(f"{n} {k}" for k, n in drive.counts.items())
     if drive.invalid_fixes:
         counts += f" ({drive.invalid_fixes} fixes without a position)"
-    title = f"{Path(args.file).name}: {duration:.1f} s, {counts}"
+    title = f"{recording.path.name}: {duration:.1f} s, {counts}"
     try:
         draw(drive, title, output)
     except OSError as exc:

@@ -10,6 +10,12 @@ Chunks are closed and made durable every FLUSH_PERIOD_S, so a recorder killed (k
 power cut) loses at most that much; `viena record --repair drive.mcap.part` then rewrites
 what is there as a complete `drive.mcap` that any MCAP reader opens.
 
+`viena record -o DIR --split-mb N --split-s S [--keep-gb G | --keep-share F]` records a
+drive, the black box's way (common/drive_files.py): numbered files `DIR/<drive>_0001.mcap`,
+..., each closed at N MB or S seconds, each starting with the latched topics' last samples,
+the oldest closed files deleted to keep DIR within the budget; the `.part` files a killed
+run left in DIR are repaired first.
+
 Zenoh's threads only stamp and queue each sample; one thread writes, so a slow disk
 delays the file, not the dataflow. Nothing on the keys for a few seconds is said on
 stderr; a recording that got nothing at all is not kept, and the exit status is 1.
@@ -17,132 +23,24 @@ stderr; a recording that got nothing at all is not kept, and the exit status is 
 from __future__ import annotations
 
 import argparse
-import logging
-import queue
 import socket
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any
 
 from viena.common import clock
-from viena.common.recording import ReceiveClock, RecordingError, RecordingWriter, human_bytes, repair
+from viena.common.drive_files import MB, DriveWriter, keep_bytes_of_share
+from viena.common.recorder import FLUSH_PERIOD_S, Recorder, SampleWriter
+from viena.common.recording import RecordingError, RecordingWriter, human_bytes, repair
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
 from viena.tool import Connection, Fail, SilenceWarning, add_timeout_flag, guarded, key_expressions, tool_logging
 
-if TYPE_CHECKING:
-    import zenoh
-
-log = logging.getLogger("viena.record")
+__all__ = ["FLUSH_PERIOD_S", "Recorder", "SampleWriter", "build_parser", "main", "run"]
 PROGRESS_PERIOD_S = 0.5
-#: chunks are closed and made durable this often: what a kill -9 or a power cut can lose
-FLUSH_PERIOD_S = 0.5
 #: how often the progress line is printed when stderr is not a terminal (a log file)
 LOG_PERIOD_S = 10.0
-
-
-class SampleWriter(Protocol):
-    """What the recorder writes into: a recording of zenoh samples (RecordingWriter) or of
-    Foxglove channels (foxglove_export.FoxgloveWriter, `record --foxglove`)."""
-
-    part: Path
-    samples: int
-
-    @property
-    def keys(self) -> int: ...
-
-    @property
-    def size(self) -> int: ...
-
-    def write(self, key: str, encoding: str, log_time: int, data: bytes) -> None: ...
-
-    def flush(self) -> None: ...
-
-    def close(self) -> Path: ...
-
-    def abandon(self) -> None: ...
-
-    def discard(self) -> None: ...
-
-
-class Recorder:
-    """Subscribes to key expressions and writes every sample to a SampleWriter.
-
-    `start()` declares the subscribers; `stop()` undeclares them, writes what is queued and
-    closes the file. A write error stops the writing; `error` then holds it.
-    """
-
-    def __init__(self, session, keyexprs: list[str], writer: SampleWriter):
-        self.session, self.keyexprs, self.writer = session, keyexprs, writer
-        self.clock = ReceiveClock()
-        self.error: OSError | None = None
-        self.failed = clock.Event()
-        self.silence = SilenceWarning("viena record", keyexprs)
-        self._queue = clock.Queue()
-        self._subscribers: list[zenoh.Subscriber] = []
-        self._thread = clock.Thread(target=self._write_loop, name="record-writer", daemon=True)
-
-    def start(self) -> None:
-        self._thread.start()
-        stamp, put, heard = self.clock, self._queue.put, self.silence.heard
-
-        def on_sample(sample) -> None:      # zenoh's thread: stamp and queue, nothing else
-            put((stamp(), str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
-            heard()
-
-        for keyexpr in self.keyexprs:
-            self._subscribers.append(self.session.declare_subscriber(keyexpr, on_sample))
-
-    @property
-    def samples(self) -> int:
-        return self.writer.samples
-
-    def backlog(self) -> int:
-        return self._queue.qsize()
-
-    def _write_loop(self) -> None:
-        """Write what arrives; every FLUSH_PERIOD_S close the chunk and make it durable, so
-        a recorder killed (or a car switched off) loses at most that much."""
-        get, write = self._queue.get, self.writer.write
-        flush_at = clock.monotonic() + FLUSH_PERIOD_S
-        while True:
-            try:
-                item = get(timeout=max(0.0, flush_at - clock.monotonic()))
-            except queue.Empty:
-                item = ()
-            if item is None:
-                return
-            try:
-                if item and self.error is None:
-                    log_time, key, encoding, data = item
-                    write(key, encoding, log_time, data)
-                if clock.monotonic() >= flush_at:
-                    flush_at = clock.monotonic() + FLUSH_PERIOD_S
-                    if self.error is None:
-                        self.writer.flush()
-            except OSError as exc:
-                self.error = exc             # drain: nothing more goes to a broken file
-                self.failed.set()
-
-    def stop(self) -> Path | None:
-        """Stop listening, write the backlog, close. The final path, or None if the
-        file could not be completed (it stays as `.part`)."""
-        for sub in self._subscribers:
-            try:
-                sub.undeclare()
-            except Exception as exc:
-                log.debug("undeclare failed: %s", exc)
-        self._subscribers.clear()
-        self._queue.put(None)
-        self._thread.join()
-        if self.error is None:
-            try:
-                return self.writer.close()
-            except OSError as exc:
-                self.error = exc
-        self.writer.abandon()
-        return None
 
 
 def default_output() -> str:
@@ -154,7 +52,19 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("keyexprs", nargs="*", metavar="KEYEXPR",
                         help="key expressions to record (default viena/**)")
     parser.add_argument("-o", "--output", metavar="FILE", default=None,
-                        help="the MCAP file to write (default viena-<UTC time>.mcap)")
+                        help="the MCAP file to write (default viena-<UTC time>.mcap); with --split-* "
+                             "or --keep-*: the directory of a drive")
+    parser.add_argument("--split-mb", type=float, default=None, metavar="N",
+                        help="record a drive into the directory -o: a new file every N MB (0: no limit)")
+    parser.add_argument("--split-s", type=float, default=None, metavar="S",
+                        help="record a drive into the directory -o: a new file every S seconds (0: no limit)")
+    budget = parser.add_mutually_exclusive_group()
+    budget.add_argument("--keep-gb", type=float, default=None, metavar="G",
+                        help="a drive's budget: delete the oldest closed files in the directory to keep "
+                             "them within G GB")
+    budget.add_argument("--keep-share", type=float, default=None, metavar="F",
+                        help="a drive's budget as a share (0-1) of the free space at start plus what "
+                             "the directory's drives hold")
     parser.add_argument("--duration", type=float, default=0.0, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress line")
@@ -201,9 +111,12 @@ class Progress:
         if self.tty and not self.quiet:
             print("\r\033[K", end="", file=sys.stderr)
         r = self.recorder
+        where = f"{path} ({human_bytes(path.stat().st_size)})"
+        if isinstance(r.writer, DriveWriter):
+            d = r.writer
+            where = f"{d.directory}: {d.number} files of drive {d.drive} ({human_bytes(d.size)}), the last {where}"
         print(f"recorded {r.samples} samples on {r.writer.keys} keys in "
-              f"{clock.monotonic() - self._t0:.1f} s into {path} ({human_bytes(path.stat().st_size)})",
-              file=sys.stderr, flush=True)
+              f"{clock.monotonic() - self._t0:.1f} s into {where}", file=sys.stderr, flush=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -218,17 +131,9 @@ def _run(args: argparse.Namespace) -> int:
     keyexprs = key_expressions(args.keyexprs or [link.keys.all if args.car or "car" in link.toml
                                                  else "viena/**"])
     output = Path(args.output or default_output())
-    try:
-        metadata = {"keyexprs": " ".join(keyexprs), "car": link.car, "host": socket.gethostname(),
-                    "started": datetime.fromtimestamp(clock.time(), UTC).isoformat(timespec="seconds")}
-        if args.foxglove:
-            from viena.foxglove_export import FoxgloveWriter  # the SDK only when asked for
-            writer: SampleWriter = FoxgloveWriter(output, metadata=metadata)
-        else:
-            writer = RecordingWriter(output, metadata=metadata)
-    except OSError as exc:
-        raise Fail(f"cannot write {output}: {exc.strerror or exc}") from None
-
+    metadata = {"keyexprs": " ".join(keyexprs), "car": link.car, "host": socket.gethostname(),
+                "started": datetime.fromtimestamp(clock.time(), UTC).isoformat(timespec="seconds")}
+    writer = _writer(args, output, metadata)
     stop = stop_on_signals()
     try:
         session = link.open(stop, args.timeout)
@@ -238,11 +143,12 @@ def _run(args: argparse.Namespace) -> int:
     if session is None:
         writer.discard()
         raise Fail("stopped before the router answered: nothing recorded")
-    recorder = Recorder(session, keyexprs, writer)
+    silence = SilenceWarning("viena record", keyexprs)
+    recorder = Recorder(session, keyexprs, writer, on_sample=silence.heard)
     progress = Progress(recorder, output, args.quiet)
     try:
         recorder.start()
-        _record_until_stopped(recorder, progress, args.duration, stop)
+        _record_until_stopped(recorder, progress, args.duration, stop, silence)
     finally:
         path = recorder.stop()
         session.close()
@@ -257,6 +163,47 @@ def _run(args: argparse.Namespace) -> int:
                    f"the key right? `viena list` shows what the car publishes)")
     progress.done(path)
     return 0
+
+
+def is_drive(args: argparse.Namespace) -> bool:
+    """A drive of split files in a directory, rather than one file."""
+    flags = (args.split_mb, args.split_s, args.keep_gb, args.keep_share)
+    return any(f is not None for f in flags)
+
+
+def _writer(args: argparse.Namespace, output: Path, metadata: dict[str, str]) -> SampleWriter:
+    """The file, or the drive, the flags ask for; Fail if it cannot be written."""
+    drive = is_drive(args)
+    if drive and args.foxglove:
+        raise Fail("--foxglove writes one file: not with --split-* or --keep-*", status=2)
+    if drive and any(v is not None and v < 0 for v in (args.split_mb, args.split_s, args.keep_gb)):
+        raise Fail("--split-mb, --split-s and --keep-gb take a number >= 0", status=2)
+    if args.keep_share is not None and not 0 < args.keep_share <= 1:
+        raise Fail("--keep-share takes a share of the free space, 0 < F <= 1", status=2)
+    try:
+        if drive:
+            return _drive_writer(args, output, metadata)
+        if args.foxglove:
+            from viena.foxglove_export import FoxgloveWriter  # the SDK only when asked for
+            return FoxgloveWriter(output, metadata=metadata)
+        return RecordingWriter(output, metadata=metadata)
+    except OSError as exc:
+        raise Fail(f"cannot write {output}: {exc.strerror or exc}") from None
+
+
+def _drive_writer(args: argparse.Namespace, directory: Path, metadata: dict[str, str]) -> DriveWriter:
+    def say(line: str) -> None:
+        print(f"viena record: {line}", file=sys.stderr, flush=True)
+
+    keep = None
+    if args.keep_gb is not None:
+        keep = int(args.keep_gb * 1000 * MB)
+    elif args.keep_share is not None:
+        directory.mkdir(parents=True, exist_ok=True)
+        keep = keep_bytes_of_share(directory, args.keep_share)
+        say(f"keeping {directory} within {human_bytes(keep)} ({args.keep_share:g} of what the disk has)")
+    return DriveWriter(directory, split_bytes=int((args.split_mb or 0) * MB), split_s=args.split_s or 0.0,
+                       keep_bytes=keep, metadata=metadata, say=say)
 
 
 def _repair(args: argparse.Namespace) -> int:
@@ -277,7 +224,7 @@ def _repair(args: argparse.Namespace) -> int:
 
 
 def _record_until_stopped(recorder: Recorder, progress: Progress, duration: float,
-                          stop: Any) -> None:
+                          stop: Any, silence: SilenceWarning) -> None:
     print(f"recording {', '.join(recorder.keyexprs)} into {progress.output} (Ctrl-C stops)",
           file=sys.stderr, flush=True)
     deadline = clock.monotonic() + duration if duration > 0 else None
@@ -290,7 +237,7 @@ def _record_until_stopped(recorder: Recorder, progress: Progress, duration: floa
         if stop.wait(wait):
             break
         progress.update()
-        recorder.silence.check()
+        silence.check()
 
 
 def main(argv: list[str] | None = None) -> int:

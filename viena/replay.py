@@ -1,4 +1,8 @@
-"""`viena replay drive.mcap`: publish a recording back into the dataflow with its timing.
+"""`viena replay DRIVE`: publish a recording back into the dataflow with its timing.
+
+DRIVE is one file (played alone), or a drive of the black box: its directory (its drive,
+or the newest, or `--drive ID`) or its id; the drive's files then play as one, the
+latched samples each file repeats at its start played once, the timing running on.
 
 Samples go out on their recorded keys, with their recorded encodings and bytes, spaced as
 they arrived at the recorder (log times), `--rate` times faster (0: as fast as the link
@@ -20,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 from viena.common import clock
 from viena.common.errors import InputError
 from viena.common.keys import ROOT, Keys
-from viena.common.recording import KeyFilter, Recorded, Recording
+from viena.common.recording import KeyFilter, Recorded, add_drive_arguments, open_source
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
 from viena.tool import Connection, Fail, add_timeout_flag, guarded, key_expressions, tool_logging
@@ -176,7 +180,7 @@ class Prefetch:
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="viena replay", description=__doc__)
-    parser.add_argument("file", help="the recording (an MCAP file from viena record)")
+    add_drive_arguments(parser)
     parser.add_argument("--rate", type=float, default=1.0,
                         help="speed: 1 is as recorded, 2 twice as fast, 0 as fast as possible")
     parser.add_argument("--loop", action="store_true", help="start again at the end, until Ctrl-C")
@@ -202,7 +206,7 @@ def _run(args: argparse.Namespace) -> int:
         if args.car is not None:
             Keys(args.car)                               # checks the name
         keys = KeyFilter(key_expressions(args.keyexpr) if args.keyexpr else None)
-        recording = Recording(args.file)
+        recording = open_source(args.file, args.drive, say=lambda note: print(f"viena replay: {note}", file=sys.stderr))
     except (InputError, ValueError) as exc:
         raise Fail(str(exc), 2) from None
     link = Connection(args)

@@ -125,7 +125,7 @@ def test_the_sim_profile_up_is_healthy(tmp_path):
         assert {"router", "sim", "gnss0", "gnss1", "razor0", "steering", "estimator"} <= set(names)
         assert checks["profile"] == (OK, f"sim (up): {', '.join(names)}")
         assert checks[f"router {router}"] == (OK, "reachable")
-        off = ["caster", "ntrip"]                                    # the corrections chain: `up --rtk`
+        off = ["caster", "ntrip", "recorder"]                        # `up --rtk`; the black box: `up --record`
         assert checks["programs"] == (OK, f"{len(names) - len(off)} running, {', '.join(off)} off")
         assert checks["ntrip"][0] == OK and checks["ntrip"][1].startswith("off: the profile runs without corrections")
         devices = [name for name in checks if name.startswith(("gnss0 socket://", "razor0 socket://", "can slcan"))]

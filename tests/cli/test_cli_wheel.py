@@ -158,7 +158,7 @@ def test_sim_profile_up_and_every_tool_on_it(installed):
         monitor = installed.viena("monitor", "--duration", "3")
         assert monitor.returncode == 0 and "simulator truth" in monitor.stdout, monitor.stderr
         doctor = installed.viena("doctor")
-        assert doctor.returncode == 0 and re.search(r"^OK +programs: \d+ running(, caster, ntrip off)?$", doctor.stdout, re.M), doctor.stdout
+        assert doctor.returncode == 0 and re.search(r"^OK +programs: \d+ running(, caster, ntrip, recorder off)?$", doctor.stdout, re.M), doctor.stdout
 
         record = installed.viena("record", TRUTH, "-o", "drive.mcap", "--duration", "2", "-q", timeout=120)
         assert record.returncode == 0, record.stderr

@@ -83,7 +83,7 @@ def test_the_pi_store_made_as_the_docs_say_starts_the_pi_profile(store, tmp_path
 
     pi = tmp_path / "pi-keys"
     assert keys(["--keys", str(store.dir), "export", "router", "gnss0", "gnss1", "razor0", "steering",
-                 "estimator", "autopilot", "-o", str(pi)]) == 0
+                 "estimator", "autopilot", "recorder", "-o", str(pi)]) == 0
     assert not (pi / "ca.key").exists() and not (pi / "pilot.key").exists() and (pi / "pilot.pem").exists()
     out = secure_environment(compose.profile_file("pi"), env_of("pi"), False, False, str(pi))
     assert out["VIENA_LINK"] == "tls" and out["VIENA_KEYS"] == str(pi.resolve())

@@ -19,7 +19,7 @@ from viena.common.secure import secure_router
 from viena.keys_cli import main as keys
 
 #: what the Pi runs, as docs/deployment.md exports it
-PI = ["router", "gnss0", "gnss1", "razor0", "steering", "estimator", "autopilot"]
+PI = ["router", "gnss0", "gnss1", "razor0", "steering", "estimator", "autopilot", "recorder"]
 PEOPLE = {"alice": "pilot", "bob": "observer"}
 
 

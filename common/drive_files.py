@@ -1,0 +1,229 @@
+"""A drive as numbered split files in a directory: the black box's writing side of the
+files its readers (replay, export, plot: a drive's files read as one) share with it.
+
+One run of a recorder is one *drive*, `viena-YYYYMMDD-HHMMSS` (UTC start; `-2`, `-3` if the
+name is taken), written as `DIR/<drive>_0001.mcap`, `_0002`, ...: each a whole recording
+(`.part` while open) with the metadata `drive` and `part`. A file is closed and the next
+opened when it holds `split_bytes` or covers `split_s` seconds of log time, whichever
+first; the next file starts with the last sample of every latched topic (topics.py
+`Topic.latched`: the route's path today) at its original log and publish time, so each
+file replays on its own. After a file closes, the oldest closed drive files in DIR are
+deleted until they hold at most `keep_bytes` (never the open one: it is still `.part`).
+Before its first file, the writer repairs what the last run left (`*.mcap.part`).
+
+Split by log time rather than the wall clock: the files say what they cover, and a test
+drives the splits with the times it chooses.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+from collections.abc import Callable
+from datetime import UTC, datetime
+from pathlib import Path
+
+from viena.common import clock
+from viena.common.recording import (
+    CHUNK_BYTES,
+    RecordingError,
+    RecordingWriter,
+    drive_file,
+    drive_order,
+    human_bytes,
+    repair,
+    sample_time,
+)
+from viena.common.samples.topics import topic_of_key
+
+log = logging.getLogger("viena.recorder")
+PART_SUFFIX = ".part"
+BROKEN_SUFFIX = ".broken"
+MB = 1_000_000
+
+Say = Callable[[str], None]
+
+
+def drive_name(directory: Path, started_ns: int) -> str:
+    """`viena-YYYYMMDD-HHMMSS` of the UTC start, with `-2`, `-3`, ... if DIR holds it already."""
+    base = datetime.fromtimestamp(started_ns / 1e9, UTC).strftime("viena-%Y%m%d-%H%M%S")
+    taken = {p.name.partition("_")[0] for p in directory.iterdir()} if directory.is_dir() else set()
+    name, n = base, 1
+    while name in taken:
+        n += 1
+        name = f"{base}-{n}"
+    return name
+
+
+def file_order(path: Path) -> tuple[str, int, int]:
+    """Oldest first: by start, then the `-n` of drives started in the same second, then part
+    (the names are common/recording.py's DRIVE_FILE, which the readers use too)."""
+    found = drive_file(path)
+    if found is None:
+        return (path.name, 0, 0)
+    return (*drive_order(found[0]), found[1])
+
+
+def drive_files(directory: Path) -> list[Path]:
+    """The closed files of every drive in DIR, oldest first (a recording put there by hand,
+    under another name, is not the black box's to count or delete)."""
+    return sorted((p for p in directory.glob("viena-*.mcap") if drive_file(p) is not None), key=file_order)
+
+
+def trim_to_budget(directory: Path, keep_bytes: int, say: Say = log.info) -> list[Path]:
+    """Delete the oldest closed drive files until those left hold at most `keep_bytes`;
+    one line says what went. The files deleted."""
+    files = [(p, p.stat().st_size) for p in drive_files(directory)]
+    total = sum(size for _, size in files)
+    gone: list[Path] = []
+    freed = 0
+    for path, size in files:
+        if total <= keep_bytes:
+            break
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError as exc:
+            say(f"cannot delete {path.name} to keep {directory} within {human_bytes(keep_bytes)}: "
+                f"{exc.strerror or exc}")
+            break
+        total -= size
+        freed += size
+        gone.append(path)
+    if gone:
+        names = ", ".join(p.name for p in gone)
+        say(f"deleted the {len(gone)} oldest files ({human_bytes(freed)}) to keep {directory} within "
+            f"{human_bytes(keep_bytes)}: {names}")
+    return gone
+
+
+def keep_bytes_of_share(directory: Path, share: float) -> int:
+    """`share` of what the drives may have: the file system's free space now plus what the
+    drives in DIR already hold."""
+    held = sum(p.stat().st_size for p in drive_files(directory))
+    return int(share * (shutil.disk_usage(directory).free + held))
+
+
+def repair_leftovers(directory: Path, say: Say = log.info) -> list[Path]:
+    """Every `*.mcap.part` in DIR (a run killed or cut off) rewritten as the complete file
+    it should have been, then removed; one that cannot be read at all is kept as
+    `*.mcap.broken`. One line each. The files made."""
+    made: list[Path] = []
+    for part in sorted(directory.glob(f"*.mcap{PART_SUFFIX}")):
+        target = part.with_name(part.name[:-len(PART_SUFFIX)])
+        try:
+            path, samples, lost = repair(part, target)
+        except RecordingError as exc:
+            broken = target.with_name(target.name + BROKEN_SUFFIX)
+            os.replace(part, broken)
+            say(f"{part.name}, left by the last run, cannot be read ({exc}): kept as {broken.name}")
+            continue
+        except OSError as exc:
+            say(f"cannot repair {part.name}, left by the last run: {exc.strerror or exc}")
+            continue
+        part.unlink()
+        made.append(path)
+        said = f" ({lost[-1]})" if lost else ""
+        say(f"repaired {part.name}, left by the last run, into {path.name}: {samples} samples{said}")
+    return made
+
+
+class DriveWriter:
+    """A SampleWriter (common/recorder.py) that writes one drive as split files into
+    `directory`, with the latched repeats and the budget; `samples`, `keys` and `size` are
+    the drive's, `part` the file being written.
+
+    Opening repairs the leftovers, applies the budget and opens the first file, so a
+    directory that cannot be written fails here (OSError). Write errors are raised as
+    OSError, as RecordingWriter's are.
+    """
+
+    def __init__(self, directory: str | Path, *, split_bytes: int = 0, split_s: float = 0.0,
+                 keep_bytes: int | None = None, metadata: dict[str, str] | None = None,
+                 started_ns: int | None = None, chunk_size: int = CHUNK_BYTES, say: Say = log.info):
+        self.directory = Path(directory)
+        self.split_bytes, self.split_ns = split_bytes, int(split_s * 1e9)
+        self.keep_bytes, self.say, self.chunk_size = keep_bytes, say, chunk_size
+        self.metadata = dict(metadata or {})
+        self.directory.mkdir(parents=True, exist_ok=True)
+        repair_leftovers(self.directory, say)
+        if keep_bytes is not None:
+            trim_to_budget(self.directory, keep_bytes, say)
+        self.drive = drive_name(self.directory, clock.time_ns() if started_ns is None else started_ns)
+        self.number = 0
+        self.closed: list[Path] = []          # this drive's closed files (some may be deleted since)
+        self.samples = 0
+        self._closed_bytes = 0
+        self._latched: dict[str, bool] = {}                          # key -> is its topic latched
+        self._held: dict[tuple[str, str], tuple[int, int, bytes]] = {}  # last latched samples
+        self._first_log_time: int | None = None                       # of the open file's new samples
+        self._writer = self._open()
+        self.part = self._writer.part                                 # the file being written
+        self._is_open = True
+
+    @property
+    def keys(self) -> int:
+        return len(self._latched)
+
+    @property
+    def size(self) -> int:
+        """Bytes written in this drive so far (the open chunk not counted)."""
+        return self._closed_bytes + (self._writer.size if self._is_open else 0)
+
+    def _open(self) -> RecordingWriter:
+        self.number += 1
+        path = self.directory / f"{self.drive}_{self.number:04d}.mcap"
+        metadata = {**self.metadata, "drive": self.drive, "part": str(self.number)}
+        return RecordingWriter(path, metadata=metadata, chunk_size=self.chunk_size)
+
+    def write(self, key: str, encoding: str, log_time: int, data: bytes) -> None:
+        latched = self._latched.get(key)
+        if latched is None:
+            found = topic_of_key(key)
+            latched = self._latched[key] = found is not None and found[0].latched
+        if self._first_log_time is None:
+            self._first_log_time = log_time
+        elif self._full(log_time):
+            self._next_file()
+            self._first_log_time = log_time
+        self._writer.write(key, encoding, log_time, data)
+        self.samples += 1
+        if latched:
+            self._held[(key, encoding)] = (log_time, sample_time(data) or log_time, data)
+
+    def _full(self, log_time: int) -> bool:
+        assert self._first_log_time is not None
+        return bool((self.split_bytes and self._writer.size >= self.split_bytes)
+                    or (self.split_ns and log_time - self._first_log_time >= self.split_ns))
+
+    def _next_file(self) -> None:
+        """Close the open file, keep the budget, open the next with the latched samples."""
+        self._close_file()
+        self._writer = self._open()
+        self.part = self._writer.part
+        self._is_open = True
+        for (key, encoding), (log_time, publish_time, data) in self._held.items():
+            self._writer.write(key, encoding, log_time, data, publish_time)
+
+    def _close_file(self) -> Path:
+        path = self._writer.close()
+        self._is_open = False
+        self.closed.append(path)
+        self._closed_bytes += path.stat().st_size
+        if self.keep_bytes is not None:
+            trim_to_budget(self.directory, self.keep_bytes, self.say)
+        return path
+
+    def flush(self) -> None:
+        self._writer.flush()
+
+    def close(self) -> Path:
+        """Close the open file (the budget kept); its path."""
+        return self._close_file()
+
+    def abandon(self) -> None:
+        self._writer.abandon()
+
+    def discard(self) -> None:
+        self._writer.discard()
