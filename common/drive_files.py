@@ -6,19 +6,25 @@ name is taken), written as `DIR/<drive>_0001.mcap`, `_0002`, ...: each a whole r
 (`.part` while open) with the metadata `drive` and `part`. A file is closed and the next
 opened when it holds `split_bytes` or covers `split_s` seconds of log time, whichever
 first; the next file starts with the last sample of every latched topic (topics.py
-`Topic.latched`: the route's path today) at its original log and publish time, so each
-file replays on its own. After a file closes, the oldest closed drive files in DIR are
-deleted until they hold at most `keep_bytes` (never the open one: it is still `.part`).
-Before its first file, the writer repairs what the last run left (`*.mcap.part`).
+`Topic.latched`: the route's path today), logged at the file's start with its original
+publish time, and says how many it starts with (metadata `repeats`), so each file replays
+on its own and a reader of the whole drive skips them. After a file closes, the oldest
+closed drive files in DIR are deleted until they hold at most `keep_bytes` (never the open
+one: it is still `.part`). Before its first file, the writer repairs what the last run
+left (`*.mcap.part`). One writer at a time per directory (a lock file): two recorders
+would repair each other's open files.
 
 Split by log time rather than the wall clock: the files say what they cover, and a test
 drives the splits with the times it chooses.
 """
 from __future__ import annotations
 
+import errno
+import fcntl
 import logging
 import os
 import shutil
+import threading
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
@@ -39,6 +45,7 @@ from viena.common.samples.topics import topic_of_key
 log = logging.getLogger("viena.recorder")
 PART_SUFFIX = ".part"
 BROKEN_SUFFIX = ".broken"
+LOCK_NAME = ".viena-recorder.lock"
 MB = 1_000_000
 
 Say = Callable[[str], None]
@@ -73,7 +80,7 @@ def drive_files(directory: Path) -> list[Path]:
 def trim_to_budget(directory: Path, keep_bytes: int, say: Say = log.info) -> list[Path]:
     """Delete the oldest closed drive files until those left hold at most `keep_bytes`;
     one line says what went. The files deleted."""
-    files = [(p, p.stat().st_size) for p in drive_files(directory)]
+    files = [(p, _bytes_of([p])) for p in drive_files(directory)]
     total = sum(size for _, size in files)
     gone: list[Path] = []
     freed = 0
@@ -101,31 +108,51 @@ def trim_to_budget(directory: Path, keep_bytes: int, say: Say = log.info) -> lis
 def keep_bytes_of_share(directory: Path, share: float) -> int:
     """`share` of what the drives may have: the file system's free space now plus what the
     drives in DIR already hold."""
-    held = sum(p.stat().st_size for p in drive_files(directory))
-    return int(share * (shutil.disk_usage(directory).free + held))
+    return int(share * (shutil.disk_usage(directory).free + _bytes_of(drive_files(directory))))
+
+
+def _bytes_of(paths: list[Path]) -> int:
+    """Their sizes; a file gone meanwhile (another tool's budget) counts nothing."""
+    total = 0
+    for path in paths:
+        try:
+            total += path.stat().st_size
+        except FileNotFoundError:
+            pass
+    return total
 
 
 def repair_leftovers(directory: Path, say: Say = log.info) -> list[Path]:
-    """Every `*.mcap.part` in DIR (a run killed or cut off) rewritten as the complete file
-    it should have been, then removed; one that cannot be read at all is kept as
-    `*.mcap.broken`. One line each. The files made."""
+    """Every drive file left as `.part` in DIR (a run killed or cut off) rewritten as the
+    complete file it should have been. The `.part` goes only when nothing but its unfinished
+    tail was lost; otherwise it stays beside the repair as `*.mcap.broken`, as does one that
+    cannot be read at all. Other names (a recording someone else writes there) are not the
+    black box's to touch. One line each. The files made."""
     made: list[Path] = []
-    for part in sorted(directory.glob(f"*.mcap{PART_SUFFIX}")):
-        target = part.with_name(part.name[:-len(PART_SUFFIX)])
-        try:
-            path, samples, lost = repair(part, target)
-        except RecordingError as exc:
-            broken = target.with_name(target.name + BROKEN_SUFFIX)
-            os.replace(part, broken)
-            say(f"{part.name}, left by the last run, cannot be read ({exc}): kept as {broken.name}")
+    for part in sorted(directory.glob(f"viena-*.mcap{PART_SUFFIX}")):
+        if drive_file(part) is None:
             continue
+        target = part.with_name(part.name[:-len(PART_SUFFIX)])
+        broken = target.with_name(target.name + BROKEN_SUFFIX)
+        try:
+            try:
+                path, samples, lost = repair(part, target)
+            except RecordingError as exc:
+                os.replace(part, broken)
+                say(f"{part.name}, left by the last run, cannot be read ({exc}): kept as {broken.name}")
+                continue
+            if len(lost) > 1:                       # problems besides where it stopped: keep the evidence
+                os.replace(part, broken)
+                kept = f"; the original kept as {broken.name}"
+            else:
+                part.unlink()
+                kept = ""
         except OSError as exc:
             say(f"cannot repair {part.name}, left by the last run: {exc.strerror or exc}")
             continue
-        part.unlink()
         made.append(path)
         said = f" ({lost[-1]})" if lost else ""
-        say(f"repaired {part.name}, left by the last run, into {path.name}: {samples} samples{said}")
+        say(f"repaired {part.name}, left by the last run, into {path.name}: {samples} samples{said}{kept}")
     return made
 
 
@@ -147,6 +174,8 @@ class DriveWriter:
         self.keep_bytes, self.say, self.chunk_size = keep_bytes, say, chunk_size
         self.metadata = dict(metadata or {})
         self.directory.mkdir(parents=True, exist_ok=True)
+        self._lock_file = _lock(self.directory)
+        self._lock = threading.Lock()         # the writing thread splits while others read `size`
         repair_leftovers(self.directory, say)
         if keep_bytes is not None:
             trim_to_budget(self.directory, keep_bytes, say)
@@ -168,13 +197,14 @@ class DriveWriter:
 
     @property
     def size(self) -> int:
-        """Bytes written in this drive so far (the open chunk not counted)."""
-        return self._closed_bytes + (self._writer.size if self._is_open else 0)
+        """Bytes written in this drive so far (the open chunk not counted); from any thread."""
+        with self._lock:
+            return self._closed_bytes + (self._writer.size if self._is_open else 0)
 
-    def _open(self) -> RecordingWriter:
+    def _open(self, repeats: int = 0) -> RecordingWriter:
         self.number += 1
         path = self.directory / f"{self.drive}_{self.number:04d}.mcap"
-        metadata = {**self.metadata, "drive": self.drive, "part": str(self.number)}
+        metadata = {**self.metadata, "drive": self.drive, "part": str(self.number), "repeats": str(repeats)}
         return RecordingWriter(path, metadata=metadata, chunk_size=self.chunk_size)
 
     def write(self, key: str, encoding: str, log_time: int, data: bytes) -> None:
@@ -185,7 +215,7 @@ class DriveWriter:
         if self._first_log_time is None:
             self._first_log_time = log_time
         elif self._full(log_time):
-            self._next_file()
+            self._next_file(log_time)
             self._first_log_time = log_time
         self._writer.write(key, encoding, log_time, data)
         self.samples += 1
@@ -197,20 +227,23 @@ class DriveWriter:
         return bool((self.split_bytes and self._writer.size >= self.split_bytes)
                     or (self.split_ns and log_time - self._first_log_time >= self.split_ns))
 
-    def _next_file(self) -> None:
-        """Close the open file, keep the budget, open the next with the latched samples."""
+    def _next_file(self, log_time: int) -> None:
+        """Close the open file, keep the budget, open the next with the latched samples,
+        logged at its start (`log_time`) with their own publish times."""
         self._close_file()
-        self._writer = self._open()
-        self.part = self._writer.part
-        self._is_open = True
-        for (key, encoding), (log_time, publish_time, data) in self._held.items():
+        with self._lock:
+            self._writer = self._open(repeats=len(self._held))
+            self.part = self._writer.part
+            self._is_open = True
+        for (key, encoding), (_, publish_time, data) in self._held.items():
             self._writer.write(key, encoding, log_time, data, publish_time)
 
     def _close_file(self) -> Path:
-        path = self._writer.close()
-        self._is_open = False
-        self.closed.append(path)
-        self._closed_bytes += path.stat().st_size
+        with self._lock:
+            path = self._writer.close()
+            self._is_open = False
+            self.closed.append(path)
+            self._closed_bytes += _bytes_of([path])
         if self.keep_bytes is not None:
             trim_to_budget(self.directory, self.keep_bytes, self.say)
         return path
@@ -220,10 +253,27 @@ class DriveWriter:
 
     def close(self) -> Path:
         """Close the open file (the budget kept); its path."""
-        return self._close_file()
+        try:
+            return self._close_file()
+        finally:
+            self._lock_file.close()
 
     def abandon(self) -> None:
         self._writer.abandon()
+        self._lock_file.close()
 
     def discard(self) -> None:
         self._writer.discard()
+        self._lock_file.close()
+
+
+def _lock(directory: Path):
+    """DIR's lock, held while this writer lives (closed with it, or by the kernel when the
+    process dies); OSError if another writer holds it."""
+    f = open(directory / LOCK_NAME, "a")
+    try:
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        f.close()
+        raise OSError(errno.EBUSY, f"another recorder writes into {directory}") from None
+    return f

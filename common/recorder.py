@@ -57,8 +57,10 @@ class SampleWriter(Protocol):
 class Recorder:
     """Subscribes to key expressions and writes every sample to a SampleWriter.
 
-    `start()` declares the subscribers; `stop()` undeclares them, writes what is queued and
-    closes the file. A write error (disk full, a card gone read-only) stops the writing:
+    `start()` declares the subscribers (unless `listen()` did already: samples queue from
+    then on, while a writer is still being made, such as the black box's, which repairs
+    the last run's file first) and starts writing; `stop()` undeclares them, writes what
+    is queued and closes the file. A write error (disk full, a card gone read-only) stops the writing:
     `error` then holds it, `failed` is set and `on_error(exc)` is called once, from the
     writing thread; the subscribers stay, their samples are dropped. `on_sample()` is
     called from zenoh's threads for every sample heard (a silence warning's `heard`).
@@ -77,7 +79,13 @@ class Recorder:
         self._thread = clock.Thread(target=self._write_loop, name="record-writer", daemon=True)
 
     def start(self) -> None:
+        self.listen()
         self._thread.start()
+
+    def listen(self) -> None:
+        """Declare the subscribers: from now on every sample is queued for the writer."""
+        if self._subscribers:
+            return
         stamp, put, heard = self.clock, self._queue.put, self.on_sample
 
         def on_sample(sample) -> None:      # zenoh's thread: stamp and queue, nothing else
@@ -156,15 +164,19 @@ class Recorder:
             except Exception:
                 log.exception("the recorder's on_error failed")
 
-    def stop(self) -> Path | None:
-        """Stop listening, write the backlog, close. The final path, or None if the
-        file could not be completed (it stays as `.part`)."""
+    def unlisten(self) -> None:
+        """Undeclare the subscribers (nothing more is queued)."""
         for sub in self._subscribers:
             try:
                 sub.undeclare()
             except Exception as exc:
                 log.debug("undeclare failed: %s", exc)
         self._subscribers.clear()
+
+    def stop(self) -> Path | None:
+        """Stop listening, write the backlog, close. The final path, or None if the
+        file could not be completed (it stays as `.part`)."""
+        self.unlisten()
         self._queue.put(None)
         self._thread.join()
         if self.error is None:

@@ -42,6 +42,7 @@ from mcap.writer import CompressionType, Writer
 
 from viena.common import clock
 from viena.common.errors import InputError, SampleError
+from viena.common.paths import drives_dir
 from viena.common.samples.topics import topic_of_key
 from viena.common.schema import MSGPACK, unpack
 
@@ -468,10 +469,10 @@ class Drive:
 
     The same reading interface as `Recording` (messages, problems, stopped, complete,
     count, first and last log time, metadata, report), so replay, export and info take
-    either. File n > 1 opens with the latched topics' last samples under their original
-    log times; they are skipped here (any message of a later file whose log time is not
-    after the last one read from the files before it), so each sample comes once and
-    the log times run on across files. A file read alone still has them.
+    either. File n > 1 opens with the latched topics' last samples, as many as its
+    metadata `repeats` says; they are skipped here (in a file that does not say: any
+    message logged at or before the last one read from the files before it), so each
+    sample comes once and the log times run on across files. A file read alone has them.
     """
 
     def __init__(self, drive_id: str, files: list[Path], note: str | None = None):
@@ -529,7 +530,7 @@ class Drive:
                 complete = False
                 continue
             after = self.last_log_time if number else None
-            yield from self._new(recording.messages(), keys, after)
+            yield from self._new(recording, keys, after)
             self._took(recording)
             complete = complete and recording.complete
             self.problems.extend(f"{path.name}: {line}" for line in recording.problems)
@@ -538,13 +539,19 @@ class Drive:
         self.stopped = "; ".join(stops) or None
         self.complete = complete and not self.cut_short
 
-    def _new(self, messages: Iterator[Recorded], keys: KeyFilter | None, after: int | None) -> Iterator[Recorded]:
-        """The messages after log time `after` (all if None), for the keys `keys` keeps.
-        The key filter comes after the repeat test: what repeats is the file's, not the filter's."""
-        for m in messages:
-            if after is not None and m.log_time <= after:
-                self.repeats += 1
-                continue
+    def _new(self, recording: Recording, keys: KeyFilter | None, after: int | None) -> Iterator[Recorded]:
+        """A later file's messages (`after`: the last log time read before it; None for the
+        first file) without its repeats: as many as its metadata `repeats` says, or, in a
+        file that does not say, those logged at or before `after`. For the keys `keys`
+        keeps; the key filter comes after the repeat test: what repeats is the file's."""
+        skip: int | None = None
+        for i, m in enumerate(recording.messages()):
+            if after is not None:
+                if skip is None:
+                    skip = int(recording.metadata.get("repeats", -1))
+                if (i < skip) if skip >= 0 else (m.log_time <= after):
+                    self.repeats += 1
+                    continue
             self.count += 1
             if self.first_log_time is None:
                 self.first_log_time = m.log_time
@@ -586,7 +593,8 @@ def open_source(target: str | Path, drive_id: str | None = None,
             say(drive.note)
         return drive
     if not path.exists() and DRIVE_ID.fullmatch(path.name):
-        return Drive.in_directory(path.parent, path.name)
+        directory = path.parent if str(path.parent) != "." or find_drives(".") else drives_dir()
+        return Drive.in_directory(directory, path.name)
     if drive_id is not None:
         raise RecordingError(f"{target}: --drive picks a drive in a directory; this is one file")
     return Recording(path)

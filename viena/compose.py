@@ -126,6 +126,22 @@ def rtk_environment(env: dict[str, str]) -> dict[str, str]:
             "VIENA_PILOT_CONTROLLER": os.environ.get("VIENA_PILOT_CONTROLLER") or "stanley"}
 
 
+def _secure_environment(conf: Path, env: dict[str, str], secure: bool, insecure: bool, keys: str | None,
+                        record: bool) -> dict[str, str]:
+    """secure_environment; a key store made before the black box (no `recorder` identity)
+    starts the car without it, with one line saying how to add it, unless --record asked."""
+    try:
+        return secure_environment(conf, env, secure, insecure, keys)
+    except SecurityRefusal as exc:
+        if record or env.get("VIENA_RECORD") != "true" or "recorder" not in str(exc):
+            raise
+    print("viena up: the key store has no `recorder` identity (made before the black box): starting "
+          "without it. On the machine that keeps the CA: `viena keys issue recorder recorder`, then export "
+          "it to this car (docs/deployment.md)", file=sys.stderr, flush=True)
+    env["VIENA_RECORD"] = "false"
+    return secure_environment(conf, env, secure, insecure, keys)
+
+
 def saved_environment(profile: str) -> dict[str, str]:
     env = read_environment(profile)
     if env is None:
@@ -164,7 +180,7 @@ def up(profile: str = DEFAULT_PROFILE, detach: bool = False, free_ports: bool = 
     if record:
         env["VIENA_RECORD"] = "true"
     try:
-        env.update(secure_environment(conf, env, secure, insecure, keys))
+        env.update(_secure_environment(conf, env, secure, insecure, keys, record))
     except SecurityRefusal as exc:
         raise ComposeError(f"profile {profile}: {exc}") from None
     run = Path(env["VIENA_RUN"])

@@ -31,6 +31,7 @@ from typing import Any
 
 from viena.common import clock
 from viena.common.drive_files import MB, DriveWriter, keep_bytes_of_share
+from viena.common.paths import drives_dir
 from viena.common.recorder import FLUSH_PERIOD_S, Recorder, SampleWriter
 from viena.common.recording import RecordingError, RecordingWriter, human_bytes, repair
 from viena.common.session import add_common_arguments
@@ -130,7 +131,7 @@ def _run(args: argparse.Namespace) -> int:
     link = Connection(args)
     keyexprs = key_expressions(args.keyexprs or [link.keys.all if args.car or "car" in link.toml
                                                  else "viena/**"])
-    output = Path(args.output or default_output())
+    output = Path(args.output or (drives_dir() if is_drive(args) else default_output()))
     metadata = {"keyexprs": " ".join(keyexprs), "car": link.car, "host": socket.gethostname(),
                 "started": datetime.fromtimestamp(clock.time(), UTC).isoformat(timespec="seconds")}
     writer = _writer(args, output, metadata)
@@ -176,8 +177,10 @@ def _writer(args: argparse.Namespace, output: Path, metadata: dict[str, str]) ->
     drive = is_drive(args)
     if drive and args.foxglove:
         raise Fail("--foxglove writes one file: not with --split-* or --keep-*", status=2)
-    if drive and any(v is not None and v < 0 for v in (args.split_mb, args.split_s, args.keep_gb)):
-        raise Fail("--split-mb, --split-s and --keep-gb take a number >= 0", status=2)
+    if drive and any(v is not None and v < 0 for v in (args.split_mb, args.split_s)):
+        raise Fail("--split-mb and --split-s take a number >= 0 (0: no limit)", status=2)
+    if args.keep_gb is not None and not args.keep_gb > 0:      # 0 would delete every drive there
+        raise Fail("--keep-gb takes G > 0", status=2)
     if args.keep_share is not None and not 0 < args.keep_share <= 1:
         raise Fail("--keep-share takes a share of the free space, 0 < F <= 1", status=2)
     try:

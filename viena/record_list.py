@@ -189,7 +189,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser = parser or argparse.ArgumentParser(prog="viena record list", description=__doc__,
                                                formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("directory", nargs="?", type=Path, default=None, metavar="DIR",
-                        help="where the drives are (default: the recorder's directory, else here)")
+                        help="where the drives are (default $VIENA_DRIVES, else ~/.local/share/viena/drives)")
     parser.add_argument("--json", action="store_true", help="the same as a JSON list, one object a drive")
     return parser
 

@@ -4,10 +4,10 @@ is up, into a drive of numbered MCAP files (services/recorder/README.md):
     viena-recorder --directory /var/lib/viena/drives --split-mb 64 --split-s 600 --keep-gb 8
     viena-recorder --config compose/pi.toml           # the [recorder] table
 
-At start it repairs what the last run left (`.part` files: a power cut), trims the oldest
-closed files to the budget, then records. Each file closes after `split_mb` or `split_s`,
-opens with the last sample of every latched topic (the route held), and is made durable
-every half second. A full disk or a card gone read-only stops the recording with one line
+At start it listens at once (the samples queue), repairs what the last run left (`.part`
+files: a power cut), trims the oldest closed files to the budget, then writes. Each file
+closes after `split_mb` or `split_s`, opens with the last sample of every latched topic
+(the route held), and is made durable every half second. A full disk or a card gone read-only stops the recording with one line
 in the log and a red health (`write_failures`); the rest of the car never waits for it:
 zenoh's threads only queue, one thread writes.
 """
@@ -20,6 +20,7 @@ from pathlib import Path
 
 from viena.common import clock
 from viena.common.drive_files import DriveWriter, keep_bytes_of_share
+from viena.common.errors import ConfigError
 from viena.common.paths import drives_dir
 from viena.common.recorder import Recorder
 from viena.common.service import Service, run_service
@@ -51,50 +52,72 @@ class RecorderService(Service):
         s = self.settings
         directory = Path(s.directory).expanduser() if s.directory else drives_dir()
         if not 0.0 < s.keep_share <= 1.0:
-            raise ValueError(f"[recorder] keep_share: a share of the free space, 0 to 1, got {s.keep_share!r}")
-        directory.mkdir(parents=True, exist_ok=True)
-        keep = int(s.keep_gb * 1e9) if s.keep_gb > 0 else keep_bytes_of_share(directory, s.keep_share)
+            raise ConfigError(f"[recorder] keep_share: a share of the free space, 0 < F <= 1, got {s.keep_share!r}")
         keyexprs = [self.keys.key(k) for k in s.keyexprs]
         metadata = {"keyexprs": " ".join(keyexprs), "car": self.keys.car, "host": socket.gethostname(),
                     "started": datetime.fromtimestamp(clock.time(), UTC).isoformat(timespec="seconds")}
-        self.writer = DriveWriter(directory, split_bytes=int(s.split_mb * 1e6), split_s=s.split_s,
-                                  keep_bytes=keep, metadata=metadata, say=self.log.info)
+        # the car is recorded from now on, queued while the last run's file is repaired: the
+        # writer comes below, once that is done
+        self.recorder = Recorder(self.session, keyexprs, None, on_error=self._failed)  # type: ignore[arg-type]
+        self.recorder.listen()
+        try:
+            directory.mkdir(parents=True, exist_ok=True)
+            keep = int(s.keep_gb * 1e9) if s.keep_gb > 0 else keep_bytes_of_share(directory, s.keep_share)
+            self.writer = DriveWriter(directory, split_bytes=int(s.split_mb * 1e6), split_s=s.split_s,
+                                      keep_bytes=keep, metadata=metadata, say=self.log.info)
+        except OSError as exc:             # a card gone read-only, full, or another recorder there
+            self.recorder.unlisten()
+            self._red(exc, f"cannot record into {directory}: {exc.strerror or exc} (the car goes on "
+                           "without its black box)")
+            return
         self.health.set("directory", str(directory))
         self.health.set("drive", self.writer.drive)
         self.health.set("keep_bytes", keep)
-        self.recorder = Recorder(self.session, keyexprs, self.writer, on_error=self._failed)
+        self.recorder.writer = self.writer
         self.recorder.start()
-        self._state = clock.Thread(target=self._report, name="recorder-state", daemon=True)
-        self._state.start()
+        self._reporter = clock.Thread(target=self._report, name="recorder-state", daemon=True)
+        self._reporter.start()
         self.log.info("recording %s into %s (drive %s; files of %g MB or %g s; budget %.2f GB)",
                       " ".join(keyexprs), directory, self.writer.drive, s.split_mb, s.split_s, keep / 1e9)
 
     def _failed(self, exc: OSError) -> None:
         """From the writing thread, once: the recording stops, the car goes on."""
+        self._red(exc, f"cannot write {self.writer.part}: {exc.strerror or exc}: recording stopped (the car "
+                       "goes on; free the disk and restart the recorder)")
+
+    def _red(self, exc: OSError, line: str) -> None:
+        """One line in the log, and the health red (`write_failures`) until a restart."""
         self.health.error("write_failures")
         self.health.set("recording", False)
         self.health.set("last_error", str(exc.strerror or exc))
-        self.log.error("cannot write %s: %s: recording stopped (the car goes on; free the disk and "
-                       "restart the recorder)", self.writer.part, exc.strerror or exc)
+        self.log.error("%s", line)
 
     def _report(self) -> None:
         """Once a second, not once a sample: the samples written (their rate is the health's),
         and where they go."""
         written = 0
         while not self.stopping.wait(STATE_PERIOD_S):
-            samples = self.recorder.samples
-            if samples > written:
-                self.health.count("samples", samples - written)
-                self.health.mark_sample()
-                written = samples
-            self.health.set("recording", not self.recorder.failed.is_set())
-            self.health.set("file", self.writer.part.name)
-            self.health.set("drive_bytes", self.writer.size)
-            self.health.set("backlog", self.recorder.backlog())
+            try:
+                written = self._say_state(written)
+            except Exception:                   # the health must go on saying what it can
+                self.log.exception("the recorder's state could not be read")
+
+    def _say_state(self, written: int) -> int:
+        samples = self.recorder.samples
+        if samples > written:
+            self.health.count("samples", samples - written)
+            self.health.mark_sample()
+        self.health.set("recording", not self.recorder.failed.is_set())
+        self.health.set("file", self.writer.part.name)
+        self.health.set("drive_bytes", self.writer.size)
+        self.health.set("backlog", self.recorder.backlog())
+        return samples
 
     def stop(self) -> None:
         recorder = getattr(self, "recorder", None)
-        if recorder is not None:
+        if recorder is not None and recorder.writer is None:
+            recorder.unlisten()
+        elif recorder is not None:
             path = recorder.stop()
             if path is not None:
                 self.log.info("closed %s: drive %s, %d samples", path.name, self.writer.drive, recorder.samples)

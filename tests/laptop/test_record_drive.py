@@ -6,6 +6,7 @@ no clock, no sleeps."""
 from __future__ import annotations
 
 import errno
+import os
 import re
 from datetime import UTC, datetime
 from pathlib import Path
@@ -96,7 +97,10 @@ def test_a_drive_splits_by_size(tmp_path):
     assert writer.size == sum(sizes)
 
 
-def test_a_latched_topic_opens_every_later_file_with_its_original_times(tmp_path):
+def test_a_latched_topic_opens_every_later_file_at_its_start(tmp_path):
+    """The route opens each later file, logged at the file's start (so the file read alone
+    replays from its own start) with its own publish time; the file says how many such
+    repeats it begins with, and a reader of the drive skips exactly those."""
     writer = DriveWriter(tmp_path, split_s=1.0, started_ns=T0)
     path_t = T0 + 5 * MS
     writer.write(PATH_KEY, PATH_ENCODING, path_t + 2 * MS, path_sample(path_t))
@@ -107,8 +111,11 @@ def test_a_latched_topic_opens_every_later_file_with_its_original_times(tmp_path
     assert len(files) == 3
     for later in files[1:]:
         got = messages(later)
-        assert got[0] == (PATH_KEY, path_t + 2 * MS, path_t)            # first, as it was recorded
-        assert got[1][0] == TRUTH_KEY and got[1][1] > got[0][1]
+        assert got[0][0] == PATH_KEY and got[0][2] == path_t             # its own publish time ...
+        assert got[1][0] == TRUTH_KEY and got[1][1] == got[0][1]         # ... logged at the file's start
+        reading = Recording(later)
+        list(reading.messages())
+        assert reading.metadata["repeats"] == "1"
         assert [m for m in got if m[0] == PATH_KEY] == [got[0]]          # once per file
         channel = {c.topic: c for c in make_reader(open(later, "rb")).get_summary().channels.values()}
         assert channel[PATH_KEY].metadata["viena_latched"] == "true"
@@ -196,6 +203,7 @@ def test_a_drive_killed_mid_file_is_repaired_by_the_next_run(tmp_path):
     write_drive(first, 1.5)
     first.flush()
     first._writer._file.flush()                            # then kill -9: no close, no summary
+    first._lock_file.close()                               # ... and the kernel lets go of its lock
     assert [p.name for p in tmp_path.glob("*.part")] == [f"{DRIVE}_0002.mcap.part"]
 
     second = DriveWriter(tmp_path, split_s=1.0, started_ns=T0)
@@ -204,6 +212,33 @@ def test_a_drive_killed_mid_file_is_repaired_by_the_next_run(tmp_path):
     assert [f.name for f in files] == [f"{DRIVE}_0001.mcap", f"{DRIVE}_0002.mcap"]
     assert sum(len(messages(f)) for f in files) == 150
     second.discard()
+
+
+def test_a_second_writer_into_the_same_directory_is_refused(tmp_path):
+    """It would repair the first one's open file from under it."""
+    first = DriveWriter(tmp_path, split_s=1.0, started_ns=T0)
+    write_drive(first, 0.5)
+    with pytest.raises(OSError, match="another recorder writes into"):
+        DriveWriter(tmp_path, split_s=1.0, started_ns=T0)
+    assert [p.name for p in tmp_path.glob("*.part")] == [f"{DRIVE}_0001.mcap.part"]
+    first.close()
+    DriveWriter(tmp_path, split_s=1.0, started_ns=T0).discard()      # free again once it closed
+
+
+def test_a_repair_that_lost_more_than_the_tail_keeps_the_original(tmp_path):
+    part = tmp_path / f"{DRIVE}_0001.mcap.part"
+    writer = RecordingWriter(tmp_path / f"{DRIVE}_0001.mcap", chunk_size=2_000)
+    for i in range(300):
+        writer.write(TRUTH_KEY, TRUTH_ENCODING, T0 + i * MS, msgpack.packb({"t": T0 + i * MS, "pad": os.urandom(64)}))
+    writer.flush()
+    writer._file.flush()
+    data = bytearray(part.read_bytes())
+    data[len(data) // 2:len(data) // 2 + 64] = b"\0" * 64             # a damaged chunk in the middle
+    part.write_bytes(bytes(data))
+    said: list[str] = []
+    DriveWriter(tmp_path, split_s=1.0, started_ns=T0 + 10**12, say=said.append).discard()
+    assert (tmp_path / f"{DRIVE}_0001.mcap").exists() and (tmp_path / f"{DRIVE}_0001.mcap.broken").exists()
+    assert not part.exists() and any("original kept" in line for line in said)
 
 
 class FakeSession:

@@ -79,3 +79,21 @@ def test_a_full_disk_stops_the_recording_turns_the_health_red_and_the_recorder_l
     rec.send_signal(signal.SIGTERM)
     _, err = rec.communicate(timeout=10)
     assert "cannot write" in err and "recording stopped" in err and "Traceback" not in err
+
+
+def test_a_directory_it_cannot_write_is_one_line_and_a_red_health(tmp_path, procs, router, session):
+    """Here: another recorder (of another car) writes into it; on the car, a card gone
+    read-only. The recorder stays up and says why; the car goes on."""
+    drives = tmp_path / "drives"
+    first = recorder(procs, router, drives, "--car", "other")
+    assert wait_until(lambda: list(drives.glob("*.part")), 30)
+    second = recorder(procs, router, drives)
+    red = collect_until(session, HEALTH_KEY, lambda got: any(h["errors"].get("write_failures") for h in got),
+                        timeout=20, decode=HEALTH.decode)
+    assert red[-1]["state"]["recording"] is False and "another recorder" in red[-1]["state"]["last_error"]
+    assert second.poll() is None and first.poll() is None
+    for proc in (second, first):
+        proc.send_signal(signal.SIGTERM)
+    _, err = second.communicate(timeout=10)
+    assert "cannot record into" in err and "Traceback" not in err
+    assert first.wait(timeout=10) == 0 and len(closed(drives)) == 1     # the first one's drive, untouched
