@@ -7,9 +7,10 @@ is up, into a drive of numbered MCAP files (services/recorder/README.md):
 At start it listens at once (the samples queue), repairs what the last run left (`.part`
 files: a power cut), trims the oldest closed files to the budget, then writes. Each file
 closes after `split_mb` or `split_s`, opens with the last sample of every latched topic
-(the route held), and is made durable every half second. A full disk or a card gone read-only stops the recording with one line
-in the log and a red health (`write_failures`); the rest of the car never waits for it:
-zenoh's threads only queue, one thread writes.
+(the route held), and is made durable every half second. A full disk or a card gone
+read-only stops the recording with one line in the log and a red health
+(`write_failures`); the rest of the car never waits for it: zenoh's threads only queue,
+one thread writes.
 """
 from __future__ import annotations
 
