@@ -202,7 +202,7 @@ def test_sigterm_and_sigint_stop_the_bridge_cleanly(car):
             with FoxgloveClient(port) as client:
                 assert client.wait_for_topics(SAMPLE_KEYS[:1])
                 client.subscribe([client.channel(SAMPLE_KEYS[0])])
-                assert client.collect(lambda m: len(m) > 10, timeout=10)
+                assert client.collect(lambda m: len(m) > 10)       # within 30 s: a busy machine is slow
                 proc.send_signal(sig)
                 assert proc.wait(timeout=5) == 0, proc.stderr.read()     # design notes: within 2 s
     finally:
