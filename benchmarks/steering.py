@@ -122,11 +122,22 @@ def main(argv=None) -> int:
     return 0
 
 
-def _arm(session) -> str:
-    reply = _get(session, "arm", {"arm": True})
-    if reply.get("status") != "accepted":
-        raise RuntimeError(f"arm refused: {reply}")
-    return reply["lease"]
+#: arms this benchmark asked again because the last e-stop of its own had not settled yet
+LEFTOVER_ESTOPS = [0]
+
+
+def _arm(session, attempts: int = 4) -> str:
+    """Arm; an arm refused because an e-stop stopped it (this benchmark's own previous one,
+    still reaching the service) is asked again, a moment later, and counted."""
+    for attempt in range(attempts):
+        reply = _get(session, "arm", {"arm": True})
+        if reply.get("status") == "accepted":
+            return reply["lease"]
+        if "estop" not in str(reply.get("reason", "")) or attempt == attempts - 1:
+            break
+        LEFTOVER_ESTOPS[0] += 1
+        time.sleep(0.5)
+    raise RuntimeError(f"arm refused: {reply}")
 
 
 def _run(session, watch: BusWatch, pid: int, args) -> None:
@@ -186,7 +197,8 @@ def _run(session, watch: BusWatch, pid: int, args) -> None:
         t_qs = watch.wait_for(lambda cw, _t: cw == ds402.CW_QUICK_STOP, t0, 1.0)
         if t_qs is not None:
             estops.append(t_qs - t0)
-    print(f"estop put -> quick stop on bus   {_ms(estops)}")
+    print(f"estop put -> quick stop on bus   {_ms(estops)}"
+          + (f"  ({LEFTOVER_ESTOPS[0]} arms asked again after a leftover e-stop)" if LEFTOVER_ESTOPS[0] else ""))
     print(f"service CPU: disarmed {idle_cpu * 100:5.1f} %   steering at 50 Hz {steering_cpu * 100:5.1f} % of one core")
 
 
