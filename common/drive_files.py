@@ -36,6 +36,7 @@ from viena.common.recording import (
     RecordingWriter,
     drive_file,
     drive_order,
+    file_size,
     human_bytes,
     repair,
     sample_time,
@@ -80,7 +81,7 @@ def drive_files(directory: Path) -> list[Path]:
 def trim_to_budget(directory: Path, keep_bytes: int, say: Say = log.info) -> list[Path]:
     """Delete the oldest closed drive files until those left hold at most `keep_bytes`;
     one line says what went. The files deleted."""
-    files = [(p, _bytes_of([p])) for p in drive_files(directory)]
+    files = [(p, file_size(p)) for p in drive_files(directory)]
     total = sum(size for _, size in files)
     gone: list[Path] = []
     freed = 0
@@ -108,18 +109,18 @@ def trim_to_budget(directory: Path, keep_bytes: int, say: Say = log.info) -> lis
 def keep_bytes_of_share(directory: Path, share: float) -> int:
     """`share` of what the drives may have: the file system's free space now plus what the
     drives in DIR already hold."""
-    return int(share * (shutil.disk_usage(directory).free + _bytes_of(drive_files(directory))))
+    return int(share * (shutil.disk_usage(directory).free + sum(map(file_size, drive_files(directory)))))
 
 
-def _bytes_of(paths: list[Path]) -> int:
-    """Their sizes; a file gone meanwhile (another tool's budget) counts nothing."""
-    total = 0
-    for path in paths:
-        try:
-            total += path.stat().st_size
-        except FileNotFoundError:
-            pass
-    return total
+def budget_bytes(directory: Path, keep_gb: float | None, keep_share: float | None) -> int | None:
+    """The drives' budget: `keep_gb` GB, else `keep_share` of the free space plus what DIR
+    holds; None (no budget) when neither is given."""
+    if keep_gb:
+        return int(keep_gb * 1000 * MB)
+    if keep_share:
+        directory.mkdir(parents=True, exist_ok=True)
+        return keep_bytes_of_share(directory, keep_share)
+    return None
 
 
 def repair_leftovers(directory: Path, say: Say = log.info) -> list[Path]:
@@ -243,7 +244,7 @@ class DriveWriter:
             path = self._writer.close()
             self._is_open = False
             self.closed.append(path)
-            self._closed_bytes += _bytes_of([path])
+            self._closed_bytes += file_size(path)
         if self.keep_bytes is not None:
             trim_to_budget(self.directory, self.keep_bytes, self.say)
         return path

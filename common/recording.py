@@ -22,7 +22,6 @@ person names (a file, a directory, a drive id) into what to read.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import re
@@ -509,7 +508,7 @@ class Drive:
 
     @property
     def size(self) -> int:
-        return sum(_size(p) for p in self.files)
+        return sum(file_size(p) for p in self.files)
 
     @property
     def cut_short(self) -> bool:
@@ -573,7 +572,8 @@ class Drive:
 Source = Recording | Drive
 
 
-def _size(path: Path) -> int:
+def file_size(path: Path) -> int:
+    """A file's size; 0 for one gone meanwhile (a budget deleting it) or unreadable."""
     try:
         return path.stat().st_size
     except OSError:
@@ -598,12 +598,3 @@ def open_source(target: str | Path, drive_id: str | None = None,
     if drive_id is not None:
         raise RecordingError(f"{target}: --drive picks a drive in a directory; this is one file")
     return Recording(path)
-
-
-def add_drive_arguments(parser: argparse.ArgumentParser) -> None:
-    """The recording a tool reads (see `open_source`), as `file` and `drive`."""
-    parser.add_argument("file", metavar="RECORDING",
-                        help="one MCAP file (read alone), or a drive of several files read as one: "
-                             "its directory or its id (viena-YYYYMMDD-HHMMSS)")
-    parser.add_argument("--drive", metavar="ID",
-                        help="with a directory of several drives: which one (default the newest)")

@@ -22,7 +22,8 @@ from typing import Any
 
 from viena.common.errors import InputError, SampleError
 from viena.common.payload import to_jsonable
-from viena.common.recording import KeyFilter, Source, add_drive_arguments, open_source
+from viena.common.recording import KeyFilter, Source, open_source
+from viena.tool import add_drive_arguments
 
 TIME_COLUMNS = ["log_time_ns", "publish_time_ns"]
 

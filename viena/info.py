@@ -29,10 +29,10 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 
 from viena.common.errors import InputError, SampleError
-from viena.common.recording import Drive, Source, add_drive_arguments, decode_value, human_bytes, open_source
+from viena.common.recording import Drive, Source, decode_value, human_bytes, open_source
 from viena.common.samples.topics import topic_of_key
 from viena.hz import CorrectionsMix, SolutionMix, content_mix
-from viena.tool import Fail, guarded
+from viena.tool import Fail, add_drive_arguments, guarded
 
 
 @dataclass

@@ -31,9 +31,10 @@ from typing import Any
 import numpy as np
 
 from viena.common.errors import InputError, SampleError
-from viena.common.recording import Source, add_drive_arguments, open_source
+from viena.common.recording import Source, open_source
 from viena.common.samples import topics
 from viena.common.samples.fix import NO_FIX_ECEF
+from viena.tool import add_drive_arguments
 
 MIN_COURSE_SPEED_MPS = 1.0          # below this a GNSS course over ground is noise
 

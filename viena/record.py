@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from viena.common import clock
-from viena.common.drive_files import MB, DriveWriter, keep_bytes_of_share
+from viena.common.drive_files import MB, DriveWriter, budget_bytes
 from viena.common.paths import drives_dir
 from viena.common.recorder import FLUSH_PERIOD_S, Recorder, SampleWriter
 from viena.common.recording import RecordingError, RecordingWriter, human_bytes, repair
@@ -198,12 +198,8 @@ def _drive_writer(args: argparse.Namespace, directory: Path, metadata: dict[str,
     def say(line: str) -> None:
         print(f"viena record: {line}", file=sys.stderr, flush=True)
 
-    keep = None
-    if args.keep_gb is not None:
-        keep = int(args.keep_gb * 1000 * MB)
-    elif args.keep_share is not None:
-        directory.mkdir(parents=True, exist_ok=True)
-        keep = keep_bytes_of_share(directory, args.keep_share)
+    keep = budget_bytes(directory, args.keep_gb, args.keep_share)
+    if keep is not None and not args.keep_gb:
         say(f"keeping {directory} within {human_bytes(keep)} ({args.keep_share:g} of what the disk has)")
     return DriveWriter(directory, split_bytes=int((args.split_mb or 0) * MB), split_s=args.split_s or 0.0,
                        keep_bytes=keep, metadata=metadata, say=say)

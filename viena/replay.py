@@ -24,10 +24,10 @@ from typing import TYPE_CHECKING, Any
 from viena.common import clock
 from viena.common.errors import InputError
 from viena.common.keys import ROOT, Keys
-from viena.common.recording import KeyFilter, Recorded, add_drive_arguments, open_source
+from viena.common.recording import KeyFilter, Recorded, open_source
 from viena.common.session import add_common_arguments
 from viena.common.signals import stop_on_signals
-from viena.tool import Connection, Fail, add_timeout_flag, guarded, key_expressions, tool_logging
+from viena.tool import Connection, Fail, add_drive_arguments, add_timeout_flag, guarded, key_expressions, tool_logging
 
 if TYPE_CHECKING:
     import zenoh

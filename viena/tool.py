@@ -101,3 +101,12 @@ class SilenceWarning:
         keys = ", ".join(f"'{k}'" for k in self.keyexprs)
         print(f"{self.prog}: nothing on {keys} for {self.after_s:g} s: is the key right? "
               f"`viena list` shows what the car publishes", file=sys.stderr, flush=True)
+
+
+def add_drive_arguments(parser: argparse.ArgumentParser) -> None:
+    """The recording a tool reads (see `open_source`), as `file` and `drive`."""
+    parser.add_argument("file", metavar="RECORDING",
+                        help="one MCAP file (read alone), or a drive of several files read as one: "
+                             "its directory or its id (viena-YYYYMMDD-HHMMSS)")
+    parser.add_argument("--drive", metavar="ID",
+                        help="with a directory of several drives: which one (default the newest)")

@@ -20,7 +20,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from viena.common import clock
-from viena.common.drive_files import DriveWriter, keep_bytes_of_share
+from viena.common.drive_files import MB, DriveWriter, budget_bytes
 from viena.common.errors import ConfigError
 from viena.common.paths import drives_dir
 from viena.common.recorder import Recorder
@@ -63,8 +63,8 @@ class RecorderService(Service):
         self.recorder.listen()
         try:
             directory.mkdir(parents=True, exist_ok=True)
-            keep = int(s.keep_gb * 1e9) if s.keep_gb > 0 else keep_bytes_of_share(directory, s.keep_share)
-            self.writer = DriveWriter(directory, split_bytes=int(s.split_mb * 1e6), split_s=s.split_s,
+            keep = budget_bytes(directory, s.keep_gb, s.keep_share)
+            self.writer = DriveWriter(directory, split_bytes=int(s.split_mb * MB), split_s=s.split_s,
                                       keep_bytes=keep, metadata=metadata, say=self.log.info)
         except OSError as exc:             # a card gone read-only, full, or another recorder there
             self.recorder.unlisten()
@@ -79,7 +79,7 @@ class RecorderService(Service):
         self._reporter = clock.Thread(target=self._report, name="recorder-state", daemon=True)
         self._reporter.start()
         self.log.info("recording %s into %s (drive %s; files of %g MB or %g s; budget %.2f GB)",
-                      " ".join(keyexprs), directory, self.writer.drive, s.split_mb, s.split_s, keep / 1e9)
+                      " ".join(keyexprs), directory, self.writer.drive, s.split_mb, s.split_s, (keep or 0) / 1e9)
 
     def _failed(self, exc: OSError) -> None:
         """From the writing thread, once: the recording stops, the car goes on."""
