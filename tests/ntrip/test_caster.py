@@ -40,16 +40,27 @@ def gga_line(lat: float, lon: float, alt: float, quality: int = 1) -> str:
     return f"${body}*{checksum:02X}"
 
 
-@pytest.fixture
-def caster():
+def _caster(rate: float):
     mountpoints = {
         "VIENA0": Mountpoint.at(IST_ORIGIN, 2000.0, 45.0, station_id=101, seed=1),
         "MSM": Mountpoint.at(IST_ORIGIN, 8000.0, 200.0, station_id=102, seed=2, messages="msm"),
         "VRS": Mountpoint.at(IST_ORIGIN, 30_000.0, 90.0, station_id=103, seed=3, vrs=True),
     }
-    c = CasterTwin(mountpoints=mountpoints, users={USER: PASSWORD}, timebase=Timebase(rate=RATE)).start()
+    c = CasterTwin(mountpoints=mountpoints, users={USER: PASSWORD}, timebase=Timebase(rate=rate)).start()
     yield c
     c.stop()
+
+
+@pytest.fixture
+def caster():
+    yield from _caster(RATE)
+
+
+@pytest.fixture
+def paced_caster():
+    """At 4x: a loaded machine must stall the stream 1.25 s, not 0.25 s, before the twin skips
+    epochs (as a caster does for a client too slow: MAX_LAG_EPOCHS)."""
+    yield from _caster(4.0)
 
 
 class Conn:
@@ -139,7 +150,8 @@ def frames_bytes(frames) -> int:
 
 # -- the protocol ----------------------------------------------------------------------------------
 @pytest.mark.parametrize("v2", [False, True], ids=["ntrip1", "ntrip2"])
-def test_a_stream_starts_with_the_station_then_one_epoch_a_second(caster, v2):
+def test_a_stream_starts_with_the_station_then_one_epoch_a_second(paced_caster, v2):
+    caster = paced_caster
     conn = Conn(caster.port, "VIENA0", v2=v2)
     conn.read(3.0, until=lambda d: d.count(b"\xd3\x00") >= 8)
     status, headers, _ = conn.head()
