@@ -9,7 +9,7 @@ Foxglove file (viena/foxglove_export.py).
 from __future__ import annotations
 
 import logging
-import queue
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
@@ -25,6 +25,9 @@ log = logging.getLogger("viena.recorder")
 FLUSH_PERIOD_S = 0.5
 #: the writing thread takes the samples this often, all that came at once
 BATCH_S = 0.05
+#: what zenoh keeps for a batched recorder whose writer is behind (a disk that stalls):
+#: some 50 s of the sim car; beyond that the oldest go, and the car never waits
+RING_SAMPLES = 20_000
 
 
 class SampleWriter(Protocol):
@@ -54,6 +57,44 @@ class SampleWriter(Protocol):
     def discard(self) -> None: ...
 
 
+class RingSubscribers:
+    """Samples kept by zenoh itself (a RingChannel per subscriber: zenoh's thread never waits
+    on Python, and would drop the oldest only after RING_SAMPLES behind), taken by the
+    writing thread a batch at a time: no Python thread woken once a sample, which was a
+    third of the black box's CPU.
+
+    The log time is still when each sample arrived, not when its batch was taken: the
+    router stamps every sample it routes (its HLC, zenoh's `timestamping`), so a sample's
+    age is the wall clock now less that stamp, and its arrival the receive clock now less
+    its age. Clamped between the last batch's arrival and now (a stamp from another clock,
+    or none: now), and never before the sample taken before it, so log times only grow.
+    """
+
+    def __init__(self, stamp: ReceiveClock):
+        self.stamp = stamp
+        self._last = stamp()
+
+    def declare(self, session, keyexprs: list[str]) -> list:
+        import zenoh
+
+        return [session.declare_subscriber(k, zenoh.handlers.RingChannel(RING_SAMPLES)) for k in keyexprs]
+
+    def take(self, subscribers: list) -> list[tuple[int, str, str, bytes]]:
+        """Every sample waiting, oldest first per subscriber, as (log time, key, encoding, payload)."""
+        now, wall = self.stamp(), clock.time_ns()
+        last, taken = self._last, []
+        for sub in subscribers:
+            while (sample := sub.try_recv()) is not None:
+                stamped = sample.timestamp
+                if stamped is not None:
+                    last = max(last, min(now, now - wall + stamped.get_time_as_ntp64().as_nanos()))
+                else:
+                    last = now
+                taken.append((last, str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
+        self._last = now
+        return taken
+
+
 class Recorder:
     """Subscribes to key expressions and writes every sample to a SampleWriter.
 
@@ -63,18 +104,26 @@ class Recorder:
     is queued and closes the file. A write error (disk full, a card gone read-only) stops the writing:
     `error` then holds it, `failed` is set and `on_error(exc)` is called once, from the
     writing thread; the subscribers stay, their samples are dropped. `on_sample()` is
-    called from zenoh's threads for every sample heard (a silence warning's `heard`).
+    called for every sample heard (a silence warning's `heard`).
+
+    How samples come in: a callback on zenoh's thread stamps each on arrival (any session,
+    the simulation's memory bus too); `batched=True` (the black box, on a real zenoh
+    session) leaves them in zenoh's own ring (RingSubscribers), taken a batch at a time by the
+    writing thread, with no Python run per sample until then.
     """
 
     def __init__(self, session, keyexprs: list[str], writer: SampleWriter, *,
                  on_sample: Callable[[], None] | None = None,
-                 on_error: Callable[[OSError], None] | None = None):
+                 on_error: Callable[[OSError], None] | None = None,
+                 batched: bool = False):
         self.session, self.keyexprs, self.writer = session, keyexprs, writer
         self.on_sample, self.on_error = on_sample, on_error
         self.clock = ReceiveClock()
         self.error: OSError | None = None
         self.failed = clock.Event()
-        self._queue = clock.Queue()
+        self._arrived: deque = deque()     # (log time, key, encoding, payload): zenoh's threads append
+        self._rings = RingSubscribers(self.clock) if batched else None
+        self._stopping = clock.Event()
         self._subscribers: list[zenoh.Subscriber] = []
         self._thread = clock.Thread(target=self._write_loop, name="record-writer", daemon=True)
 
@@ -83,13 +132,16 @@ class Recorder:
         self._thread.start()
 
     def listen(self) -> None:
-        """Declare the subscribers: from now on every sample is queued for the writer."""
+        """Declare the subscribers: from now on every sample is kept for the writer."""
         if self._subscribers:
             return
-        stamp, put, heard = self.clock, self._queue.put, self.on_sample
+        if self._rings is not None:
+            self._subscribers = self._rings.declare(self.session, self.keyexprs)
+            return
+        stamp, append, heard = self.clock, self._arrived.append, self.on_sample
 
-        def on_sample(sample) -> None:      # zenoh's thread: stamp and queue, nothing else
-            put((stamp(), str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
+        def on_sample(sample) -> None:      # zenoh's thread: stamp and keep, nothing else
+            append((stamp(), str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
             if heard is not None:
                 heard()
 
@@ -101,52 +153,46 @@ class Recorder:
         return self.writer.samples
 
     def backlog(self) -> int:
-        return self._queue.qsize()
+        """Samples heard and not yet written (those still in zenoh's ring not counted)."""
+        return len(self._arrived)
 
     def _write_loop(self) -> None:
-        """Write what arrives, a batch at a time: woken by the first sample, the thread lets
-        BATCH_S pass and then writes everything queued, so it wakes some 20 times a second
-        rather than once a sample (the wake-ups were most of the recorder's CPU). Every
-        FLUSH_PERIOD_S it closes the chunk and makes it durable, so a recorder killed (or a
-        car switched off) loses at most that much."""
-        get = self._queue.get
+        """Write what arrived, a batch every BATCH_S, so the thread wakes some 20 times a
+        second rather than once a sample (the wake-ups were most of the recorder's CPU).
+        Every FLUSH_PERIOD_S it closes the chunk and makes it durable, so a recorder killed
+        (or a car switched off) loses at most that much. After `stop()`: what is left, then out."""
         flush_at = clock.monotonic() + FLUSH_PERIOD_S
         while True:
-            try:
-                first = get(timeout=max(0.0, flush_at - clock.monotonic()))
-            except queue.Empty:
-                first = ()
-            batch = [first]
-            if first is not None and first:
-                clock.sleep(BATCH_S)
-                batch += self._queued()
-            if not self._write(batch):
+            stopping = self._stopping.wait(BATCH_S)
+            self._write(self._taken())
+            if stopping:
                 return
             if clock.monotonic() >= flush_at:
                 flush_at = clock.monotonic() + FLUSH_PERIOD_S
                 self._flush()
 
-    def _queued(self) -> list:
-        items = []
-        while True:
-            try:
-                items.append(self._queue.get(block=False))
-            except queue.Empty:
-                return items
+    def _taken(self) -> list:
+        """What arrived so far, oldest first (zenoh's threads go on adding meanwhile)."""
+        arrived = self._arrived
+        if self._rings is not None:
+            rung = self._rings.take(self._subscribers)
+            if self.on_sample is not None:
+                for _ in rung:
+                    self.on_sample()
+            arrived.extend(rung)
+        return [arrived.popleft() for _ in range(len(arrived))]
 
-    def _write(self, batch: list) -> bool:
-        """Write a batch (after an error: drop it); False once the stop (None) is in it."""
+    def _write(self, batch: list) -> None:
+        """Write a batch (after an error: drop it)."""
+        if self.error is not None:
+            return
         write = self.writer.write
-        for item in batch:
-            if item is None:
-                return False
-            if item and self.error is None:
-                log_time, key, encoding, data = item
-                try:
-                    write(key, encoding, log_time, data)
-                except OSError as exc:
-                    self._failed(exc)            # drain: nothing more goes to a broken file
-        return True
+        for log_time, key, encoding, data in batch:
+            try:
+                write(key, encoding, log_time, data)
+            except OSError as exc:
+                self._failed(exc)                # nothing more goes to a broken file
+                return
 
     def _flush(self) -> None:
         if self.error is None:
@@ -177,7 +223,7 @@ class Recorder:
         """Stop listening, write the backlog, close. The final path, or None if the
         file could not be completed (it stays as `.part`)."""
         self.unlisten()
-        self._queue.put(None)
+        self._stopping.set()
         self._thread.join()
         if self.error is None:
             try:

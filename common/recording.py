@@ -77,10 +77,24 @@ def schema_name(zenoh_encoding: str) -> str:
     return zenoh_encoding.split(";", 1)[1] if ";" in zenoh_encoding else ""
 
 
+#: msgpack map headers by first byte: how long the header is
+_MAP_HEADER = {**{b: 1 for b in range(0x80, 0x90)}, 0xDE: 3, 0xDF: 5}
+#: msgpack unsigned and signed 64-bit integers, as the samples' `t` is packed
+_INT64 = {0xCF: struct.Struct(">Q"), 0xD3: struct.Struct(">q")}
+
+
 def sample_time(data: bytes) -> int | None:
-    """A msgpack sample's own `t` (int ns), read without unpacking the rest of it."""
-    if not data or not (0x80 <= data[0] <= 0x8F or data[0] in (0xDE, 0xDF)):
+    """A msgpack sample's own `t` (int ns), read without unpacking the rest of it: at once
+    when `t` is the map's first key as a 64-bit integer (the samples' own packing), else by
+    skipping key by key."""
+    header = _MAP_HEADER.get(data[0]) if data else None
+    if header is None:
         return None
+    if data[header:header + 2] == b"\xa1t" and len(data) >= header + 11:
+        int64 = _INT64.get(data[header + 2])
+        if int64 is not None:
+            t = int64.unpack_from(data, header + 3)[0]
+            return t if t >= 0 else None
     unpacker = msgpack.Unpacker(raw=False)
     unpacker.feed(data)
     try:

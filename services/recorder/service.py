@@ -9,8 +9,9 @@ files: a power cut), trims the oldest closed files to the budget, then writes. E
 closes after `split_mb` or `split_s`, opens with the last sample of every latched topic
 (the route held), and is made durable every half second. A full disk or a card gone
 read-only stops the recording with one line in the log and a red health
-(`write_failures`); the rest of the car never waits for it: zenoh's threads only queue,
-one thread writes.
+(`write_failures`); the rest of the car never waits for it: zenoh keeps the samples (a
+ring: the oldest go if the writer falls far behind), one thread takes them a batch at a
+time and writes.
 """
 from __future__ import annotations
 
@@ -59,7 +60,8 @@ class RecorderService(Service):
                     "started": datetime.fromtimestamp(clock.time(), UTC).isoformat(timespec="seconds")}
         # the car is recorded from now on, queued while the last run's file is repaired: the
         # writer comes below, once that is done
-        self.recorder = Recorder(self.session, keyexprs, None, on_error=self._failed)  # type: ignore[arg-type]
+        self.recorder = Recorder(self.session, keyexprs, None, on_error=self._failed,  # type: ignore[arg-type]
+                                 batched=True)
         self.recorder.listen()
         try:
             directory.mkdir(parents=True, exist_ok=True)
