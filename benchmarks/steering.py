@@ -142,7 +142,7 @@ def _arm(session, attempts: int = 4) -> str:
 
 def _run(session, watch: BusWatch, pid: int, args) -> None:
     print("steering benchmark (router, twin + slcan hub, service: one process each; bus watched by slcan)")
-    idle_cpu = cpu_share(pid, min(args.cpu_seconds, 3.0))
+    idle_cpu = cpu_share(pid, args.cpu_seconds)
 
     # 1. setpoint round trips: small alternating steps, always inside the slew limit
     lease = _arm(session)

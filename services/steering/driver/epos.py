@@ -39,6 +39,7 @@ from canopen.profiles.p402 import BaseNode402
 from viena.common import clock as clocks
 from viena.common import urlhandler
 from viena.services.steering.driver.emcy import Emcy
+from viena.services.steering.driver.slcan import SlcanBus
 from viena.services.steering.model import ds402
 from viena.services.steering.model.drive import EDS_PATH as EDS_PATH
 from viena.services.steering.model.drive import NMT_BOOTUP as NMT_BOOTUP
@@ -106,7 +107,10 @@ class EposDrive:
         self._heartbeat_s = self._heartbeat_state = None
         net = self.network = canopen.Network(self._bus)
         net.NOTIFIER_CYCLE = 0.1      # how long closing waits for the receive thread
-        if self._bus is None:
+        if self._bus is None and s.interface == "slcan":
+            net.bus = SlcanBus(s.channel, bitrate=s.bitrate, **_bus_options(s))
+            net.connect()
+        elif self._bus is None:
             net.connect(interface=s.interface, channel=s.channel, bitrate=s.bitrate, **_bus_options(s))
         else:
             net.connect()
@@ -223,9 +227,7 @@ class EposDrive:
                 pdo.add_variable(index)
             pdo.enabled = True
         self._rpdo = node.rpdo[1]
-        self._tpdo1 = node.tpdo[1]
-        node.tpdo[1].add_callback(self._on_tpdo)
-        node.tpdo[2].add_callback(self._on_tpdo)
+        self._tpdo1, self._tpdo2 = node.tpdo[1].cob_id, node.tpdo[2].cob_id
 
     def _save_process_data(self) -> None:
         node = self._node
@@ -237,11 +239,16 @@ class EposDrive:
             raise DriveError(f"PDO mapping refused: {exc}") from None
         except canopen.SdoCommunicationError as exc:
             raise DriveError(f"PDO mapping: no answer ({exc})") from None
-        node.pdo.subscribe()                   # hear the TPDOs (Feedback keeps what they say)
-        # Our RPDO's contents are ours alone: never let a frame from another host on the
-        # bus with the same COB-ID overwrite them (canopen subscribes RPDOs on save()).
-        if self._rpdo.on_message in self._net.subscribers.get(self._rpdo.cob_id, []):
-            self._net.unsubscribe(self._rpdo.cob_id, self._rpdo.on_message)
+        # canopen subscribes each saved PDO's map; none is wanted. Our RPDO's contents are
+        # ours alone: a frame from another host on the bus with the same COB-ID must never
+        # overwrite them. The TPDOs (Feedback keeps what they say, 200 a second) come
+        # straight from the network, not through the maps' bookkeeping nobody here reads.
+        for pdos in (node.rpdo, node.tpdo):
+            for n in range(1, 5):
+                if pdos[n].on_message in self._net.subscribers.get(pdos[n].cob_id, []):
+                    self._net.unsubscribe(pdos[n].cob_id, pdos[n].on_message)
+        for cob_id in (self._tpdo1, self._tpdo2):
+            self._net.subscribe(cob_id, self._on_tpdo)
 
     # -- process data ---------------------------------------------------------------------
     def cycle(self, target_qc: int | None = None) -> None:
@@ -251,13 +258,11 @@ class EposDrive:
         with self._tx_lock:
             if target_qc is not None:
                 self._target_qc = int(target_qc)
+            frames = [(self._rpdo.cob_id, RPDO1.pack(self._controlword, self._target_qc)), (self._net.sync.cob_id, b"")]
             if now >= self._next_heartbeat:
-                self._net.send_message(0x700 + self.settings.host_node_id, HEARTBEAT)
+                frames.insert(0, (0x700 + self.settings.host_node_id, HEARTBEAT))
                 self._next_heartbeat = now + self.settings.host_heartbeat_period_s
-                self.tx_frames += 1
-            self._send_rpdo()
-            self._net.sync.transmit()
-            self.tx_frames += 1
+            self._send_all(frames)
 
     def command(self, controlword: int) -> None:
         """Send a controlword now (the RPDO carries the current target with it)."""
@@ -276,6 +281,19 @@ class EposDrive:
     def _send_rpdo(self) -> None:
         self._net.send_message(self._rpdo.cob_id, RPDO1.pack(self._controlword, self._target_qc))
         self.tx_frames += 1
+
+    def _send_all(self, frames: list[tuple[int, bytes]]) -> None:
+        """These frames in order: with one write where the bus can (driver/slcan.py)."""
+        net = self._net
+        bus = net.bus
+        if isinstance(bus, SlcanBus):
+            with net.send_lock:
+                bus.send_frames(frames)
+            net.check()            # as send_message does: a failed receive thread shows here
+        else:
+            for cob_id, data in frames:
+                net.send_message(cob_id, data)
+        self.tx_frames += len(frames)
 
     @property
     def controlword(self) -> int:
@@ -313,18 +331,18 @@ class EposDrive:
         return self._heartbeat_state
 
     # -- callbacks from canopen's receive thread ------------------------------------------
-    def _on_tpdo(self, pdo) -> None:
+    def _on_tpdo(self, cob_id: int, data: bytearray, _timestamp: float) -> None:
         now = self._clock()
-        if len(pdo.data) < (TPDO1 if pdo is self._tpdo1 else TPDO2).size:
+        if len(data) < (TPDO1 if cob_id == self._tpdo1 else TPDO2).size:
             return          # not what the drive was told to send (another node on its COB-ID): not feedback
         with self._fb_lock:
             fb = self._feedback
-            if pdo is self._tpdo1:
-                statusword, position_qc = TPDO1.unpack_from(pdo.data)
+            if cob_id == self._tpdo1:
+                statusword, position_qc = TPDO1.unpack_from(data)
                 fb = Feedback(statusword, position_qc, fb.following_error_qc, fb.demand_qc, fb.op_mode,
                               now, fb.count + 1)
             else:
-                following_error_qc, demand_qc, op_mode = TPDO2.unpack_from(pdo.data)
+                following_error_qc, demand_qc, op_mode = TPDO2.unpack_from(data)
                 fb = Feedback(fb.statusword, fb.position_qc, following_error_qc, demand_qc, op_mode,
                               now, fb.count + 1)
             self._feedback = fb

@@ -1,0 +1,56 @@
+"""The steering's own slcan bus (driver/slcan.py) on the twin's hub: the frames python-can's
+slcan interface would send and receive, with reads in bulk and a period's frames in one write."""
+from __future__ import annotations
+
+import itertools
+
+import can
+import pytest
+
+from viena.common import urlhandler
+from viena.common.twin.slcan_hub import SlcanHub
+from viena.services.steering.driver.slcan import SlcanBus
+
+_n = itertools.count()
+
+
+@pytest.fixture
+def pair():
+    hub = SlcanHub(f"steering-slcan-{next(_n)}").start()
+    urlhandler.use()
+    ours = SlcanBus(hub.url, sleep_after_open=0, timeout=0.01)
+    theirs = can.Bus(interface="slcan", channel=hub.url, sleep_after_open=0, timeout=0.01)
+    theirs.send(can.Message(arbitration_id=0x7FF, data=b"", is_extended_id=False))
+    assert _recv(ours).arbitration_id == 0x7FF              # both channels open on the hub
+    yield ours, theirs
+    ours.shutdown()
+    theirs.shutdown()
+    hub.stop()
+
+
+def _recv(bus, timeout: float = 2.0) -> can.Message:
+    msg = bus.recv(timeout)
+    assert msg is not None
+    return msg
+
+
+def test_a_periods_frames_go_out_in_order(pair):
+    ours, theirs = pair
+    ours.send_frames([(0x764, b"\x05"), (0x201, bytes.fromhex("0f00e8030000")), (0x080, b"")])
+    got = [_recv(theirs) for _ in range(3)]
+    assert [(m.arbitration_id, bytes(m.data)) for m in got] == [
+        (0x764, b"\x05"), (0x201, bytes.fromhex("0f00e8030000")), (0x080, b"")]
+
+
+def test_frames_come_in_whole_and_the_adapters_acks_are_skipped(pair):
+    ours, theirs = pair
+    ours.send_frames([(0x080, b"")])                       # the hub acknowledges: skipped
+    sent = [can.Message(arbitration_id=0x181 + k, data=bytes([k, 1, 2, 3, 4, 5]), is_extended_id=False)
+            for k in range(20)]
+    sent.append(can.Message(arbitration_id=0x1ABCDEF, data=b"\x01\x02", is_extended_id=True))
+    for msg in sent:
+        theirs.send(msg)
+    got = [_recv(ours) for _ in sent]
+    assert [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in got] == [
+        (m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in sent]
+    assert ours.recv(0.05) is None                          # nothing else: no ack became a frame
