@@ -156,7 +156,10 @@ def main(argv=None) -> int:
 
     parser = argparse.ArgumentParser(prog="viena bench foxglove", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seconds", type=float, default=10.0, help="length of each measurement")
+    parser.add_argument("--seconds", type=float, default=10.0, help="length of each CPU measurement")
+    parser.add_argument("--cpu-only", action="store_true",
+                        help="only the bridge's CPU (with a client, then without) and latency: no slow "
+                             "client, floor or export")
     args = parser.parse_args(argv)
     print(f"load average before: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores", flush=True)
     with processes() as start, tempfile.TemporaryDirectory() as tmp:
@@ -186,25 +189,32 @@ def main(argv=None) -> int:
               f"p99 {percentile(delays, 99) * 1e3:.2f} ms, max {max(delays) * 1e3:.2f} ms over {len(delays)}",
               flush=True)
 
-        slow = Reader(port, receive_buffer=4096)
-        slow.subscribe_when(car_topics)
-        time.sleep(1.0)
-        slow.reading.clear()                             # reads nothing from here
-        before_mb, t0 = rss_mb(bridge.pid), time.time_ns()
-        time.sleep(10.0)
-        after_mb, t1 = rss_mb(bridge.pid), time.time_ns()
-        slow.reading.set()
-        time.sleep(5.0)
-        sent = sum(1 for t, _ in client.frames if t0 <= t < t1)
-        got = sum(1 for t, _ in slow.frames if t0 <= t < t1)
-        print(f"a client reading nothing for 10 s: bridge RSS {before_mb:.1f} -> {after_mb:.1f} MB; of the "
-              f"{sent} messages of those 10 s it got {got} afterwards ({sent - got} dropped); the other "
-              f"client got {sum(1 for t, _ in client.frames if t0 <= t < t1) / 10:.0f} messages/s meanwhile",
-              flush=True)
-        slow.close()
+        if not args.cpu_only:
+            slow = Reader(port, receive_buffer=4096)
+            slow.subscribe_when(car_topics)
+            time.sleep(1.0)
+            slow.reading.clear()                             # reads nothing from here
+            before_mb, t0 = rss_mb(bridge.pid), time.time_ns()
+            time.sleep(10.0)
+            after_mb, t1 = rss_mb(bridge.pid), time.time_ns()
+            slow.reading.set()
+            time.sleep(5.0)
+            sent = sum(1 for t, _ in client.frames if t0 <= t < t1)
+            got = sum(1 for t, _ in slow.frames if t0 <= t < t1)
+            print(f"a client reading nothing for 10 s: bridge RSS {before_mb:.1f} -> {after_mb:.1f} MB; of the "
+                  f"{sent} messages of those 10 s it got {got} afterwards ({sent - got} dropped); the other "
+                  f"client got {sum(1 for t, _ in client.frames if t0 <= t < t1) / 10:.0f} messages/s meanwhile",
+                  flush=True)
+            slow.close()
         client.close()
-        idle = cpu_share(bridge.pid, args.seconds / 2)
+        time.sleep(1.0)                                  # the client's unsubscribe reaches the bridge
+        idle = cpu_share(bridge.pid, args.seconds)
         print(f"bridge CPU, whole car, no client:                   {idle * 100:.1f} % of one core", flush=True)
+        if args.cpu_only:
+            stop.set()
+            session.close()
+            print(f"load average after: {os.getloadavg()[0]:.1f}", flush=True)
+            return 0
         bare = start("-c", BARE_SUBSCRIBER, router, f"viena/{CAR}/**")
         time.sleep(2.0)
         floor = cpu_share(bare.pid, args.seconds / 2)

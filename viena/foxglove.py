@@ -15,11 +15,12 @@ The one thing a client may send is the emergency stop: a service `estop` (Foxglo
 Service Call panel) that puts on `viena/<car>/steering/estop`, offered only when this
 tool's identity may (the `observer` and `pilot` roles), and never with `--no-estop`.
 
-A browser never slows the car: zenoh's threads only queue each sample (a bounded queue:
-when full, samples are dropped and counted); one thread converts and hands them to the
-server, which keeps at most `--backlog` messages per client and drops the oldest for a
-client that does not keep up. Nobody subscribed to a key: its samples are not even
-decoded. `--max-rate HZ` keeps at most HZ samples a second per key for slow links.
+A browser never slows the car: zenoh's threads only put each sample in a ring
+(zenoh.handlers.RingChannel, no Python on zenoh's threads: when full, the oldest samples
+are dropped); one thread takes them from it, converts and hands them to the server,
+which keeps at most `--backlog` messages per client and drops the oldest for a client
+that does not keep up. Nobody subscribed to a key: its samples are not even decoded.
+`--max-rate HZ` keeps at most HZ samples a second per key for slow links.
 Ctrl-C or SIGTERM stop it within a second.
 
 The server speaks the Foxglove WebSocket protocol under its current name,
@@ -32,7 +33,6 @@ import argparse
 import json
 import logging
 import os
-import queue
 import sys
 import threading
 import time
@@ -79,46 +79,49 @@ class Downsampler:
 
 class Bridge:
     """zenoh samples -> Foxglove channels. `start()` subscribes and starts the converting
-    thread; `stop()` undeclares, finishes what is queued and stops the thread."""
+    thread; `stop()` undeclares, finishes what is queued and stops the thread.
+
+    The samples wait in zenoh's own ring (in Rust) for the one converting thread: one
+    wake-up per sample, where a Python callback costs two (zenoh runs it on a Python
+    thread of its own, which would then queue the sample for ours)."""
 
     def __init__(self, session, keyexpr: str, channels, max_rate_hz: float = 0.0,
                  queue_samples: int = QUEUE_SAMPLES):
         self.session, self.keyexpr, self.channels = session, keyexpr, channels
         self.downsampler = Downsampler(max_rate_hz)
         self.clock = ReceiveClock()
-        self.dropped = 0                       # samples the converting thread had no room for
         self.silence = SilenceWarning("viena foxglove", [keyexpr])
         self.queue_samples = queue_samples
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._subscriber = None
-        self._thread = threading.Thread(target=self._convert_loop, name="foxglove-convert", daemon=True)
+        self._thread: threading.Thread | None = None
 
     def start(self) -> None:
+        import zenoh
+
+        ring: zenoh.handlers.RingChannel = zenoh.handlers.RingChannel(self.queue_samples)
+        subscriber = self._subscriber = self.session.declare_subscriber(self.keyexpr, ring)
+        # the handler, not the subscriber: undeclaring the subscriber while this thread waits
+        # on it would fail ("Already borrowed"); its handler's recv() ends with an error instead
+        self._thread = threading.Thread(target=self._convert_loop, args=(subscriber.handler,),
+                                        name="foxglove-convert", daemon=True)
         self._thread.start()
-        self._subscriber = self.session.declare_subscriber(self.keyexpr, self._on_sample)
 
-    def _on_sample(self, sample) -> None:
-        """zenoh's thread: leave what nobody watches, thin out, stamp, queue; never block."""
-        self.silence.heard()
-        key, encoding = str(sample.key_expr), str(sample.encoding)
-        if not self.channels.wanted(key, encoding):
-            return
-        if not self.downsampler.keep(key, time.monotonic()):
-            return
-        if self._queue.qsize() >= self.queue_samples:     # the converting thread fell behind
-            self.dropped += 1
-            return
-        self._queue.put((key, encoding, sample.payload.to_bytes(), self.clock()))
-
-    def _convert_loop(self) -> None:
-        publish = self.channels.publish
+    def _convert_loop(self, handler) -> None:
+        publish, clock, thin = self.channels.publish, self.clock, self.downsampler
+        heard = False
         while True:
-            item = self._queue.get()
-            if item is None:
-                return
-            key, encoding, data, log_time = item
             try:
-                publish(key, encoding, data, log_time)
+                sample = handler.recv()
+            except Exception:           # undeclared: the ring is empty and closed
+                return
+            if not heard:
+                self.silence.heard()
+                heard = True
+            key = str(sample.key_expr)
+            if thin.period_s and not thin.keep(key, time.monotonic()):
+                continue
+            try:
+                publish(key, str(sample.encoding), sample.payload.to_bytes(), clock())
             except Exception:           # a bug in one conversion must not end the bridge
                 log.exception("cannot convert a sample on %s", key)
 
@@ -129,8 +132,8 @@ class Bridge:
             except Exception as exc:
                 log.debug("undeclare failed: %s", exc)
             self._subscriber = None
-        self._queue.put(None)
-        self._thread.join(timeout=2.0)
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
 
 
 def estop_allowed(args: argparse.Namespace, link: Connection) -> tuple[bool, str]:
@@ -245,11 +248,10 @@ def _run(args: argparse.Namespace) -> int:
             bridge.silence.check()
             if time.monotonic() >= next_report:
                 next_report = time.monotonic() + DROP_REPORT_PERIOD_S
-                lost = bridge.dropped + sum(channels.invalid.values())
-                if lost > reported:
-                    log.warning("%d samples dropped (converting fell behind), %d failed their schema",
-                                bridge.dropped, sum(channels.invalid.values()))
-                    reported = lost
+                invalid = sum(channels.invalid.values())
+                if invalid > reported:
+                    log.warning("%d samples failed their schema", invalid)
+                    reported = invalid
     finally:
         bridge.stop()
         server.stop()

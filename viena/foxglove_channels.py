@@ -40,6 +40,11 @@ class _KeyChannels:
     json: foxglove.Channel
     derived: dict[str, _Channel] = field(default_factory=dict)      # topic -> typed channel
 
+    def __post_init__(self):
+        # the SDK's own log (foxglove.Channel.log) checks the message's type every time: the
+        # bytes go straight to its Rust channel
+        self.json_log = self.json.base.log
+
     def watched(self) -> bool:
         return self.keeps_state or self.json.has_sinks() or self.derived_watched()
 
@@ -74,17 +79,20 @@ class FoxgloveChannels:
         channels = self._keys.get((key, encoding))
         if channels is None:
             channels = self._keys[(key, encoding)] = self._advertise(key, encoding)
-        if not channels.watched():
+        json_watched = channels.json.has_sinks()
+        derived_watched = channels.derived_watched()
+        if not (json_watched or derived_watched or channels.keeps_state):
             return True
         try:
             value = self.converter.decode(channels.route, data)
         except SampleError:
             self.invalid[key] = self.invalid.get(key, 0) + 1
             return False
-        if channels.json.has_sinks():
-            channels.json.log(channels.route.json(value), log_time=log_time)
+        if json_watched:
+            channels.json_log(channels.route.json(value), log_time)
             self.logged += 1
-        if not channels.keeps_state and not channels.derived_watched():
+        if not derived_watched:                 # only what later samples need (the origin, error counts)
+            self.converter.remember(channels.route, value)
             return True
         for derived in self.converter.derived(channels.route, value):
             message = json_bytes(derived.message) if derived.kind in JSON_KINDS else derived.message

@@ -254,15 +254,22 @@ class Converter:
         if kind == "ntrip":
             return [Derived(topics[0][0], "NtripStatus", ntrip_status(sample))]
         if kind == "estimator":
-            valid = sample.get("position_valid") is True
-            if valid and sample.get("origin") is not None:
-                self._origin = tuple(sample["origin"])
-            return self._pose_messages(sample, topics, CAR_FRAME, valid=valid)
+            self.remember(route, sample)
+            return self._pose_messages(sample, topics, CAR_FRAME, valid=sample.get("position_valid") is True)
         if kind == "path":
             return self._route_messages(sample, topics)
         if kind == "truth":
             return self._pose_messages(sample, topics, TRUTH_FRAME, valid=True)
         return [Derived(topics[0][0], "Log", log) for log in self.health_logs(route.key, sample)]
+
+    def remember(self, route: Route, sample: Any) -> None:
+        """Keep what later samples need of a checked sample whose own messages nobody
+        watches (STATEFUL_KINDS): the estimator's origin; a service's error counts."""
+        if route.kind == "estimator" and isinstance(sample, dict):
+            if sample.get("position_valid") is True and sample.get("origin") is not None:
+                self._origin = tuple(sample["origin"])
+        elif route.kind == "health" and isinstance(sample, dict):
+            self.health_logs(route.key, sample)
 
     def gnss_location(self, fix: dict, unit: str) -> LocationFix | None:
         """A valid fix as the antenna's LocationFix, its sigmas as an ENU covariance."""
