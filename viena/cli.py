@@ -31,7 +31,7 @@ from viena import compose
 from viena.common.session import add_version_flag
 
 BENCHES = ["sim", "gnss", "imu", "steering", "steering_envelope", "estimator", "laptop", "security", "faults", "fleet",
-           "foxglove", "pilot", "lockstep", "ntrip", "rtk", "blackbox"]
+           "foxglove", "pilot", "lockstep", "ntrip", "rtk", "blackbox", "pi"]
 
 #: commands that live in their own module, each with build_parser(parser) and run(args);
 #: a module that is not there (a tool not written yet) is left out of the command list

@@ -96,6 +96,8 @@ def environment(profile: str, free_ports: bool = False) -> dict[str, str]:
         "VIENA_PROFILE": profile,
         "VIENA_SETTINGS": str(compose_dir() / f"{profile}.toml"),
         "VIENA_LINK": os.environ.get("VIENA_LINK") or link_default(profile),
+        # where a profile's router listens (pi.conf): every interface, unless told one
+        "VIENA_ROUTER_HOST": os.environ.get("VIENA_ROUTER_HOST") or "0.0.0.0",
         # the corrections chain (programs/ntrip.ini, caster.ini): off unless `up --rtk`
         "VIENA_RTK": "false",
         # the black box (programs/recorder.ini): on where the settings say `record = true`
