@@ -312,6 +312,17 @@ class KeyStore:
                                 f"re-issue with `viena keys issue {ident.role} {name} --force`")
         return ident
 
+    def identity_files(self, name: str) -> tuple[Path, Path]:
+        """The certificate and key of `name`, found but not read: for a process of a profile
+        whose identities `viena up` has just checked (`identity`), so that it need not load
+        cryptography (some 10 MB of every process) to check them again."""
+        self._require_store()
+        cert, key = self._cert_path(name), self._cert_path(name).with_suffix(".key")
+        for path in (cert, key):
+            if not path.exists():
+                raise SecurityError(f"no {path.name} in {self.dir}: `viena keys list` shows what is there")
+        return cert, key
+
     def router(self) -> Identity:
         ident = self.identity(ROUTER)
         if ident.role != ROUTER_ROLE:

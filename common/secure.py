@@ -21,6 +21,10 @@ LOOPBACK_HOSTS = ("127.", "localhost", "[::1]", "::1")
 log = logging.getLogger("viena.router")
 
 
+#: set (to "1") by `viena up` for the programs it starts, once it has checked their identities
+IDENTITIES_CHECKED = "VIENA_IDENTITIES_CHECKED"
+
+
 def is_secure(endpoint: str) -> bool:
     return endpoint.startswith(SECURE_SCHEMES)
 
@@ -42,13 +46,20 @@ def _tls_common(conf, store: KeyStore) -> None:
     _set(conf, "transport/link/tls/close_link_on_expiration", True)
 
 
-def secure_client(conf, store: KeyStore, name: str) -> Identity:
-    """Present identity `name` on every TLS link of this session; returns it, checked."""
-    identity = store.identity(name)
+def secure_client(conf, store: KeyStore, name: str, checked: bool = False) -> None:
+    """Present identity `name` on every TLS link of this session, after checking it as the
+    router will (dates, revocation, key), so a person reads why in one line. `checked`: the
+    caller checked it already (a program started by `viena up`, which checks every program's
+    identity first): its files are only found, and cryptography is not loaded. Should the
+    router refuse it later (it expired since), `open_session` says so and where to look."""
+    if checked:
+        cert, key = store.identity_files(name)
+    else:
+        identity = store.identity(name)
+        cert, key = identity.cert, identity.key
     _tls_common(conf, store)
-    _set(conf, "transport/link/tls/connect_certificate", str(identity.cert))
-    _set(conf, "transport/link/tls/connect_private_key", str(identity.key))
-    return identity
+    _set(conf, "transport/link/tls/connect_certificate", str(cert))
+    _set(conf, "transport/link/tls/connect_private_key", str(key))
 
 
 def secure_router(conf, store: KeyStore) -> list[Identity]:

@@ -33,7 +33,7 @@ from viena.common.config import ConfigError, load_toml, load_zenoh_config
 from viena.common.errors import InputError
 from viena.common.keys import DEFAULT_CAR
 from viena.common.keystore import KeyStore
-from viena.common.secure import is_secure, secure_client
+from viena.common.secure import IDENTITIES_CHECKED, is_secure, secure_client
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 #: the identity of a person's tool (viena sub, monitor, record...) when none is given
@@ -177,7 +177,7 @@ def zenoh_config(args: argparse.Namespace, toml: dict, default_mode: str = "clie
         name = (getattr(args, "identity", None) or identity or os.environ.get("VIENA_IDENTITY")
                 or PERSON_IDENTITY)
         store = KeyStore.for_car(car_name(args, toml), keys)
-        secure_client(conf, store, name)
+        secure_client(conf, store, name, checked=os.environ.get(IDENTITIES_CHECKED) == "1")
     return conf
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 from viena.common.errors import ConfigError
 from viena.common.keys import DEFAULT_CAR
 from viena.common.keystore import KeyStore
-from viena.common.secure import is_loopback
+from viena.common.secure import IDENTITIES_CHECKED, is_loopback
 
 _PROGRAM = re.compile(r"^\[program:([^\]]+)\]", re.M)
 _ENV = re.compile(r"%\(ENV_([A-Z0-9_]+)\)s")
@@ -83,6 +83,7 @@ def secure_environment(conf: Path, env: dict[str, str], secure: bool, insecure: 
         store = KeyStore.for_car(out["VIENA_CAR"], keys)
         out["VIENA_KEYS"] = str(store.dir.resolve())
         _check_identities(store, [p for p in programs(conf, env) if p not in WITHOUT_IDENTITY])
+        out[IDENTITIES_CHECKED] = "1"          # so each program need not load cryptography again
         return out
     listen = router_listen(conf, {**env, **out})
     if listen and not is_loopback(listen) and not insecure:
