@@ -313,9 +313,9 @@ class KeyStore:
         return ident
 
     def identity_files(self, name: str) -> tuple[Path, Path]:
-        """The certificate and key of `name`, found but not read: for a process of a profile
-        whose identities `viena up` has just checked (`identity`), so that it need not load
-        cryptography (some 10 MB of every process) to check them again."""
+        """The certificate and key of `name`, found but not read (no cryptography loaded):
+        for a program whose identity `viena up` checked (`identity`) and whose files have
+        not changed since (common/secure.py `still_checked`)."""
         self._require_store()
         cert, key = self._cert_path(name), self._cert_path(name).with_suffix(".key")
         for path in (cert, key):

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import logging
 
+from viena.common import clock
 from viena.common.access import access_control
 from viena.common.keystore import Identity, KeyStore
 
@@ -21,7 +22,8 @@ LOOPBACK_HOSTS = ("127.", "localhost", "[::1]", "::1")
 log = logging.getLogger("viena.router")
 
 
-#: set (to "1") by `viena up` for the programs it starts, once it has checked their identities
+#: set by `viena up` for the programs it starts once it has checked their identities:
+#: "CHECKED_AT:FIRST_EXPIRY", both Unix seconds (`checked_identities`)
 IDENTITIES_CHECKED = "VIENA_IDENTITIES_CHECKED"
 
 
@@ -46,13 +48,14 @@ def _tls_common(conf, store: KeyStore) -> None:
     _set(conf, "transport/link/tls/close_link_on_expiration", True)
 
 
-def secure_client(conf, store: KeyStore, name: str, checked: bool = False) -> None:
+def secure_client(conf, store: KeyStore, name: str, checked: str | None = None) -> None:
     """Present identity `name` on every TLS link of this session, after checking it as the
-    router will (dates, revocation, key), so a person reads why in one line. `checked`: the
-    caller checked it already (a program started by `viena up`, which checks every program's
-    identity first): its files are only found, and cryptography is not loaded. Should the
-    router refuse it later (it expired since), `open_session` says so and where to look."""
-    if checked:
+    router will (dates, revocation, key), so a person reads why in one line.
+
+    `checked` (IDENTITIES_CHECKED, from `viena up`, which checks every program's identity
+    before it starts them): while that check still holds (`still_checked`), the identity's
+    files are only found, and cryptography, some 10 MB of every process, is not loaded."""
+    if still_checked(store, name, checked):
         cert, key = store.identity_files(name)
     else:
         identity = store.identity(name)
@@ -60,6 +63,32 @@ def secure_client(conf, store: KeyStore, name: str, checked: bool = False) -> No
     _tls_common(conf, store)
     _set(conf, "transport/link/tls/connect_certificate", str(cert))
     _set(conf, "transport/link/tls/connect_private_key", str(key))
+
+
+def checked_identities(identities: list[Identity], checked_at: float) -> str:
+    """IDENTITIES_CHECKED's value for `identities` checked from `checked_at` (Unix s) on."""
+    first_expiry = min((i.not_after.timestamp() for i in identities), default=checked_at)
+    return f"{checked_at:.6f}:{first_expiry:.0f}"
+
+
+def still_checked(store: KeyStore, name: str, checked: str | None) -> bool:
+    """Whether `viena up`'s check holds for `name` now: no certificate it checked has
+    expired since, and neither the identity's certificate and key nor the CA's certificate
+    and the revocation list have changed since (their ctime, which no copy sets back: a
+    revocation or a new export copied onto the Pi is checked again). A program restarted
+    hours later by supervisord is thus checked afresh whenever anything could differ."""
+    try:
+        checked_at, first_expiry = (float(part) for part in (checked or "").split(":"))
+    except ValueError:
+        return False
+    if clock.time() >= first_expiry:
+        return False
+    cert = store.dir / f"{name}.pem"
+    files = (cert, cert.with_suffix(".key"), store.ca_cert, store.crl)
+    try:
+        return all(path.stat().st_ctime <= checked_at for path in files)
+    except OSError:
+        return False
 
 
 def secure_router(conf, store: KeyStore) -> list[Identity]:

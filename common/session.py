@@ -177,7 +177,7 @@ def zenoh_config(args: argparse.Namespace, toml: dict, default_mode: str = "clie
         name = (getattr(args, "identity", None) or identity or os.environ.get("VIENA_IDENTITY")
                 or PERSON_IDENTITY)
         store = KeyStore.for_car(car_name(args, toml), keys)
-        secure_client(conf, store, name, checked=os.environ.get(IDENTITIES_CHECKED) == "1")
+        secure_client(conf, store, name, checked=os.environ.get(IDENTITIES_CHECKED))
     return conf
 
 

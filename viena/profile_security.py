@@ -11,12 +11,13 @@ unless the person said `--insecure`.
 from __future__ import annotations
 
 import re
+import time
 from pathlib import Path
 
 from viena.common.errors import ConfigError
 from viena.common.keys import DEFAULT_CAR
-from viena.common.keystore import KeyStore
-from viena.common.secure import IDENTITIES_CHECKED, is_loopback
+from viena.common.keystore import Identity, KeyStore
+from viena.common.secure import IDENTITIES_CHECKED, checked_identities, is_loopback
 
 _PROGRAM = re.compile(r"^\[program:([^\]]+)\]", re.M)
 _ENV = re.compile(r"%\(ENV_([A-Z0-9_]+)\)s")
@@ -82,8 +83,9 @@ def secure_environment(conf: Path, env: dict[str, str], secure: bool, insecure: 
     if link == "tls":
         store = KeyStore.for_car(out["VIENA_CAR"], keys)
         out["VIENA_KEYS"] = str(store.dir.resolve())
-        _check_identities(store, [p for p in programs(conf, env) if p not in WITHOUT_IDENTITY])
-        out[IDENTITIES_CHECKED] = "1"          # so each program need not load cryptography again
+        checked_at = time.time()
+        checked = _check_identities(store, [p for p in programs(conf, env) if p not in WITHOUT_IDENTITY])
+        out[IDENTITIES_CHECKED] = checked_identities(checked, checked_at)   # no program checks again
         return out
     listen = router_listen(conf, {**env, **out})
     if listen and not is_loopback(listen) and not insecure:
@@ -96,14 +98,15 @@ def secure_environment(conf: Path, env: dict[str, str], secure: bool, insecure: 
     return out
 
 
-def _check_identities(store: KeyStore, names: list[str]) -> None:
-    problems = []
+def _check_identities(store: KeyStore, names: list[str]) -> list[Identity]:
+    problems, checked = [], []
     for name in names:
         try:
-            store.identity(name)
+            checked.append(store.identity(name))
         except ConfigError as exc:
             if not store.exists():
                 raise SecurityRefusal(f"{exc} (or `viena up --insecure` without TLS)") from None
             problems.append(str(exc))
     if problems:
         raise SecurityRefusal("; ".join(problems))
+    return checked

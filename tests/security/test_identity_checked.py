@@ -1,15 +1,19 @@
-"""A program `viena up` starts finds its identity's files and does not check them again:
-`viena up` checked every program's identity just before, and the check loads cryptography,
-some 10 MB of every process on the Pi (`viena bench pi`). A tool a person starts checks."""
+"""A program `viena up` starts finds its identity's files and does not check them again
+while `viena up`'s check holds: the check loads cryptography, some 10 MB of every process
+on the Pi (`viena bench pi`). A revocation, a new export or an expiry since makes the
+program check afresh; a tool a person starts always checks."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+import time
 
 import pytest
+import zenoh
 
 from viena.common.keystore import KeyStore, SecurityError
-from viena.common.secure import IDENTITIES_CHECKED, secure_client
+from viena.common.secure import IDENTITIES_CHECKED, checked_identities, secure_client, still_checked
 from viena.compose import profile_file
 from viena.profile_security import secure_environment
 
@@ -18,36 +22,67 @@ import sys, zenoh
 from viena.common.keystore import KeyStore
 from viena.common.secure import secure_client
 conf = zenoh.Config()
-secure_client(conf, KeyStore(sys.argv[1], "elettra"), "gnss0", checked=sys.argv[2] == "1")
+secure_client(conf, KeyStore(sys.argv[1], "elettra"), "gnss0", checked=sys.argv[2] or None)
 print(conf.get_json("transport/link/tls/connect_certificate"), "cryptography" in sys.modules)
 """
 
 
-@pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    store = KeyStore(tmp_path_factory.mktemp("keys"), "elettra")
+@pytest.fixture
+def store(tmp_path):
+    store = KeyStore(tmp_path / "keys", "elettra")
     store.init()
     return store
 
 
-@pytest.mark.parametrize("checked", [True, False])
-def test_a_checked_identity_is_presented_without_loading_cryptography(store, checked):
-    out = subprocess.run([sys.executable, "-c", PRESENT, str(store.dir), "1" if checked else "0"],
-                         capture_output=True, text=True, timeout=60, check=True).stdout.split()
-    assert out == [f'"{store.dir / "gnss0.pem"}"', "False" if checked else "True"]
-
-
-def test_a_checked_identity_whose_key_is_gone_is_still_refused_in_one_line(store, tmp_path):
-    (store.dir / "gnss1.key").rename(tmp_path / "gnss1.key")
-    try:
-        with pytest.raises(SecurityError, match="no gnss1.key in"):
-            secure_client(__import__("zenoh").Config(), store, "gnss1", checked=True)
-    finally:
-        (tmp_path / "gnss1.key").rename(store.dir / "gnss1.key")
-
-
-def test_viena_up_tells_its_programs_it_checked_their_identities(store, monkeypatch):
+def checked_by_viena_up(store) -> str:
     env = {"VIENA_SETTINGS": str(profile_file("pi").with_suffix(".toml")), "VIENA_RTK": "false",
            "VIENA_RECORD": "true", "VIENA_LINK": "tls"}
-    assert secure_environment(profile_file("pi"), env, True, False, str(store.dir))[IDENTITIES_CHECKED] == "1"
-    assert IDENTITIES_CHECKED not in secure_environment(profile_file("pi"), env, False, True, str(store.dir))
+    return secure_environment(profile_file("pi"), env, True, False, str(store.dir))[IDENTITIES_CHECKED]
+
+
+def present(store, checked: str) -> list[str]:
+    return subprocess.run([sys.executable, "-c", PRESENT, str(store.dir), checked], capture_output=True, text=True,
+                          timeout=60, check=True).stdout.split()
+
+
+def test_an_identity_viena_up_checked_is_presented_without_loading_cryptography(store):
+    checked = checked_by_viena_up(store)
+    assert present(store, checked) == [f'"{store.dir / "gnss0.pem"}"', "False"]
+    assert present(store, "") == [f'"{store.dir / "gnss0.pem"}"', "True"]      # a person's tool checks
+
+
+def test_a_revocation_after_viena_up_is_checked_when_the_program_starts_again(store):
+    checked = checked_by_viena_up(store)
+    assert still_checked(store, "gnss0", checked)
+    kept = {p.name: p.read_bytes() for p in (store.dir / "gnss0.pem", store.dir / "gnss0.key")}
+    time.sleep(0.01)                                         # ctime resolution: the revocation comes later
+    store.revoke("gnss0")                                    # a new revocation list, copied onto the Pi ...
+    for name, data in kept.items():                          # ... where the old certificate stayed
+        (store.dir / name).write_bytes(data)
+    assert not still_checked(store, "gnss0", checked) and not still_checked(store, "gnss1", checked)
+    with pytest.raises(SecurityError, match="revoked"):
+        secure_client(zenoh.Config(), store, "gnss0", checked=checked)
+
+
+def test_a_new_export_copied_over_the_store_is_checked_again(store):
+    checked = checked_by_viena_up(store)
+    time.sleep(0.01)
+    key = store.dir / "gnss1.key"
+    key.write_bytes(key.read_bytes())                        # what rsync does to a changed file
+    assert not still_checked(store, "gnss1", checked) and still_checked(store, "gnss0", checked)
+
+
+def test_a_check_holds_only_until_the_first_certificate_it_checked_expires(store):
+    identities = [store.identity("gnss0")]
+    now = time.time()
+    assert still_checked(store, "gnss0", checked_identities(identities, now))
+    assert not still_checked(store, "gnss0", f"{now:.6f}:{now - 1:.0f}")
+    assert not still_checked(store, "gnss0", "1") and not still_checked(store, "gnss0", None)
+
+
+def test_a_checked_identity_whose_key_is_gone_is_refused_in_one_line(store, tmp_path):
+    checked = checked_by_viena_up(store)
+    os.link(store.dir / "gnss1.key", tmp_path / "kept.key")   # (a link keeps the key's ctime as it was)
+    (store.dir / "gnss1.key").unlink()
+    with pytest.raises(SecurityError, match="gnss1"):
+        secure_client(zenoh.Config(), store, "gnss1", checked=checked)
