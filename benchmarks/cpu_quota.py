@@ -16,6 +16,7 @@ benchmark runs without a quota and says so.
 from __future__ import annotations
 
 import os
+import signal
 import time
 from pathlib import Path
 
@@ -39,17 +40,19 @@ class CpuQuota:
     def _make(self, name: str) -> tuple[Path, bool]:
         quota_us = int(round(self.cores * PERIOD_US))
         if (V1_ROOT / "cpu.cfs_quota_us").exists():
-            group = V1_ROOT / name
-            group.mkdir(exist_ok=True)
-            (group / "cpu.cfs_period_us").write_text(str(PERIOD_US))
-            (group / "cpu.cfs_quota_us").write_text(str(quota_us))
-            return group, False
-        if "cpu" in (V2_ROOT / "cgroup.subtree_control").read_text().split():
-            group = V2_ROOT / name
-            group.mkdir(exist_ok=True)
-            (group / "cpu.max").write_text(f"{quota_us} {PERIOD_US}")
-            return group, True
-        raise OSError(0, "neither a cgroup v1 cpu hierarchy nor a v2 cpu controller")
+            group, v2, settings = V1_ROOT / name, False, {"cpu.cfs_period_us": PERIOD_US, "cpu.cfs_quota_us": quota_us}
+        elif "cpu" in (V2_ROOT / "cgroup.subtree_control").read_text().split():
+            group, v2, settings = V2_ROOT / name, True, {"cpu.max": f"{quota_us} {PERIOD_US}"}
+        else:
+            raise OSError(0, "neither a cgroup v1 cpu hierarchy nor a v2 cpu controller")
+        group.mkdir(exist_ok=True)
+        try:
+            for file, value in settings.items():
+                (group / file).write_text(str(value))
+        except OSError:
+            group.rmdir()                              # not left half made
+            raise
+        return group, v2
 
     @property
     def active(self) -> bool:
@@ -75,12 +78,19 @@ class CpuQuota:
                 "throttled_s": throttled_s}
 
     def remove(self, timeout: float = 10.0) -> None:
-        """The group, once its processes are gone (the caller stopped them)."""
+        """The group, after whatever is left in it is stopped: SIGTERM, then after `timeout`
+        SIGKILL (the caller stops its processes first; this is for a run that failed half-way)."""
         if self.dir is None:
             return
-        end = time.monotonic() + timeout
-        while self.pids() and time.monotonic() < end:
-            time.sleep(0.1)
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            for pid in self.pids():
+                try:
+                    os.kill(pid, sig)
+                except ProcessLookupError:
+                    pass
+            end = time.monotonic() + timeout
+            while self.pids() and time.monotonic() < end:
+                time.sleep(0.1)
         try:
             self.dir.rmdir()
         except OSError:

@@ -32,7 +32,6 @@ import io
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
 import tempfile
@@ -239,7 +238,10 @@ class Setpoints:
                 else:
                     self.round_trips.append((now, t1 - t0))
             if reply is not None and reply.get("status") == "rejected" and "arm" in str(reply.get("reason", "")):
-                self._lease = self.arm()
+                try:
+                    self._lease = self.arm()
+                except RuntimeError as exc:                 # said in the report; asked again next period
+                    self.errors.append(str(exc))
             # a late setpoint is not followed by a burst to catch up, as the pilot's is not: the
             # router lets setpoints through at most 200 Hz per client (compose/zenoh/router.json5)
             next_at = max(next_at + period, time.monotonic())
@@ -259,12 +261,12 @@ def rss_mb(pid: int) -> tuple[float, float]:
     return int(fields["VmRSS"].split()[0]) / 1024, int(fields["VmHWM"].split()[0]) / 1024
 
 
-def tree_cpu(pid: int) -> float:
-    """CPU seconds of a process (its threads included)."""
+def process_cpu(pid: int) -> float | None:
+    """CPU seconds of a process (its threads included); None once it is gone."""
     try:
         return cpu_seconds(pid)
     except (FileNotFoundError, ProcessLookupError):
-        return float("nan")
+        return None
 
 
 def directory_bytes(path: Path) -> int:
@@ -280,30 +282,27 @@ def run(seconds: float, cores: float, warmup: float, as_json: bool) -> int:
     quota = CpuQuota(cores, f"viena-bench-pi-{os.getpid()}")
     if not quota.active:
         say(f"viena bench pi: {quota.why_not}")
-    with tempfile.TemporaryDirectory(prefix="viena-bench-pi-") as tmp, processes() as start:
-        work = Path(tmp)
-        ports = {name: free_port() for name in TWIN_PORTS}
-        start_twins(start, ports)
-        env = pi_environment(work, ports)
-        try:
-            say(f"the pi profile up under {cores:.2f} cores of quota, the twins outside it ...")
-            endpoint = pi_up(env, quota)
-            fox_port = free_port()
-            fox = start("-m", "viena.cli", "foxglove", "--port", fox_port, "--host", "127.0.0.1", "--connect",
-                        endpoint, "--keys", env["VIENA_KEYS"], "--identity", "observer", "--car", CAR,
-                        "--log-level", "WARNING", preexec_fn=quota.join)
-            wait_for_port(fox_port, 30.0)
-            with open_as(env, endpoint, "pilot") as session:
-                report = measure(session, env, quota, fox.pid, fox_port, seconds, warmup, say,
-                                 program_pids, Reader)
-        finally:
-            pi_down(env)
-            for pid in quota.pids():                     # anything of the group that outlived supervisord
-                try:
-                    os.kill(pid, signal.SIGTERM)
-                except ProcessLookupError:
-                    pass
-    quota.remove()
+    try:
+        with tempfile.TemporaryDirectory(prefix="viena-bench-pi-") as tmp, processes() as start:
+            work = Path(tmp)
+            ports = {name: free_port() for name in TWIN_PORTS}
+            start_twins(start, ports)
+            env = pi_environment(work, ports)
+            try:
+                say(f"the pi profile up under {cores:.2f} cores of quota, the twins outside it ...")
+                endpoint = pi_up(env, quota)
+                fox_port = free_port()
+                fox = start("-m", "viena.cli", "foxglove", "--port", fox_port, "--host", "127.0.0.1", "--connect",
+                            endpoint, "--keys", env["VIENA_KEYS"], "--identity", "observer", "--car", CAR,
+                            "--log-level", "WARNING", preexec_fn=quota.join)
+                wait_for_port(fox_port, 30.0)
+                with open_as(env, endpoint, "pilot") as session:
+                    report = measure(session, env, quota, fox.pid, fox_port, seconds, warmup, say,
+                                     program_pids, Reader)
+            finally:
+                pi_down(env)
+    finally:
+        quota.remove()                                   # and whatever of the group outlived the rest
     report["cores"], report["quota"] = cores, quota.active
     if as_json:
         print(json.dumps(report, indent=1))
@@ -330,26 +329,28 @@ def measure(session, env, quota: CpuQuota, fox_pid: int, fox_port: int, seconds:
         say(f"measuring {seconds:.0f} s: {', '.join(programs)}")
         throttled0 = quota.throttling()
         drives = Path(env["VIENA_DRIVES"])
-        c0 = {name: tree_cpu(pid) for name, pid in programs.items()}
+        c0 = {name: process_cpu(pid) for name, pid in programs.items()}
         b0, t0 = directory_bytes(drives), time.monotonic()
         time.sleep(seconds)
         t1 = time.monotonic()
-        c1 = {name: tree_cpu(pid) for name, pid in programs.items()}
+        c1 = {name: process_cpu(pid) for name, pid in programs.items()}
         b1, throttled1 = directory_bytes(drives), quota.throttling()
-        memory = {name: rss_mb(pid) for name, pid in programs.items()}
+        memory = {name: rss_mb(pid) for name, pid in programs.items() if c1[name] is not None}
     finally:
         setpoints.stop()
         client.close()
         watch.close()
     span = t1 - t0
-    cpu = {name: (c1[name] - c0[name]) / span for name in programs}
+    cpu = {name: (after - before) / span for name, before, after in ((n, c0[n], c1[n]) for n in programs)
+           if before is not None and after is not None}      # a program that died meanwhile: left out, said
+
     with setpoints.lock:
         trips_ms = [rt * 1e3 for sent, rt in setpoints.round_trips if t0 <= sent < t1]
         refused = [reason for sent, reason in setpoints.refused if t0 <= sent < t1]
     with watch.lock:
         lags = [lag * 1e3 for at, lag in watch.lags if t0 <= at < t1]
         trips = [text for at, text in watch.trips if t0 <= at < t1]
-    total = sum(v for v in cpu.values() if not math.isnan(v))
+    total = sum(cpu.values())
     return {
         "seconds": round(span, 1),
         "rates": watch.rates(t0, t1),
@@ -358,7 +359,8 @@ def measure(session, env, quota: CpuQuota, fox_pid: int, fox_port: int, seconds:
         "watchdog_trips": len(trips), "trips": trips[:5], "setpoint_errors": sorted(set(setpoints.errors))[:5],
         "estimator_lag_ms": {"p50": round(percentile(lags, 50), 1), "p99": round(percentile(lags, 99), 1)},
         "programs": {name: {"cpu_core_share": round(cpu[name], 4), "rss_mb": round(memory[name][0], 1),
-                            "peak_rss_mb": round(memory[name][1], 1)} for name in programs},
+                            "peak_rss_mb": round(memory[name][1], 1)} for name in cpu},
+        "programs_gone": sorted(set(programs) - set(cpu)),
         "total_cpu_core_share": round(total, 4),
         "total_pi_share": round(total / PI_CORES, 4),
         "recorder_mb_per_h": round((b1 - b0) / span * 3600 / 1e6, 1),
@@ -391,6 +393,8 @@ def print_report(r: dict) -> None:
     for name, p in sorted(r["programs"].items(), key=lambda item: -item[1]["cpu_core_share"]):
         flag = "  > 60 MB" if p["rss_mb"] > GOALS["rss_mb"] else ""
         print(f"{name:12s} {100 * p['cpu_core_share']:10.1f} {p['rss_mb']:7.1f} {p['peak_rss_mb']:6.1f}{flag}")
+    if r["programs_gone"]:
+        print(f"{'gone':12s} {', '.join(r['programs_gone'])} (died while measured)")
     print(f"{'together':12s} {100 * r['total_cpu_core_share']:10.1f}   = {100 * r['total_pi_share']:.1f} % of the "
           f"emulated Pi (4 x 1/3 core; goal <= 35 %)")
     th = r["throttling"]

@@ -54,7 +54,7 @@ DEFAULT_BACKLOG = 256
 QUEUE_SAMPLES = 1000
 ESTOP_SERVICE = "estop"
 ESTOP_KEY = topics.STEERING_ESTOP.key()
-DROP_REPORT_PERIOD_S = 10.0
+REPORT_PERIOD_S = 10.0
 
 
 class Downsampler:
@@ -79,7 +79,7 @@ class Downsampler:
 
 class Bridge:
     """zenoh samples -> Foxglove channels. `start()` subscribes and starts the converting
-    thread; `stop()` undeclares, finishes what is queued and stops the thread.
+    thread; `stop()` undeclares (what is still in the ring is dropped) and stops the thread.
 
     The samples wait in zenoh's own ring (in Rust) for the one converting thread: one
     wake-up per sample, where a Python callback costs two (zenoh runs it on a Python
@@ -112,7 +112,9 @@ class Bridge:
         while True:
             try:
                 sample = handler.recv()
-            except Exception:           # undeclared: the ring is empty and closed
+            except Exception as exc:    # undeclared (stop()): the ring is closed
+                if self._subscriber is not None:
+                    log.info("the car's samples stopped coming: %s", exc)
                 return
             if not heard:
                 self.silence.heard()
@@ -242,12 +244,12 @@ def _run(args: argparse.Namespace) -> int:
     print(f"viena foxglove: serving {keyexpr} on ws://{args.host}:{server.port} "
           f"(e-stop {'offered' if services else 'not offered'}: {why})", file=sys.stderr, flush=True)
     reported = 0
-    next_report = time.monotonic() + DROP_REPORT_PERIOD_S
+    next_report = time.monotonic() + REPORT_PERIOD_S
     try:
         while not stop.wait(0.2):
             bridge.silence.check()
             if time.monotonic() >= next_report:
-                next_report = time.monotonic() + DROP_REPORT_PERIOD_S
+                next_report = time.monotonic() + REPORT_PERIOD_S
                 invalid = sum(channels.invalid.values())
                 if invalid > reported:
                     log.warning("%d samples failed their schema", invalid)

@@ -45,9 +45,6 @@ class _KeyChannels:
         # bytes go straight to its Rust channel
         self.json_log = self.json.base.log
 
-    def watched(self) -> bool:
-        return self.keeps_state or self.json.has_sinks() or self.derived_watched()
-
     def derived_watched(self) -> bool:
         return any(ch.has_sinks() for ch in self.derived.values())
 
@@ -67,12 +64,6 @@ class FoxgloveChannels:
         self.logged = 0
         self._keys: dict[tuple[str, str], _KeyChannels] = {}
         self._typed: dict[str, _Channel] = {}
-
-    def wanted(self, key: str, encoding: str) -> bool:
-        """Whether a sample of this key is worth handing over: its channels are not
-        advertised yet, or someone subscribed to one of them. Cheap, from any thread."""
-        channels = self._keys.get((key, encoding))
-        return channels is None or channels.watched()
 
     def publish(self, key: str, encoding: str, data: bytes, log_time: int | None = None) -> bool:
         """Log one sample (and what it makes) if anyone listens; False if it failed its schema."""
