@@ -44,6 +44,11 @@ def _below(*chunks: str) -> str:
     return "/".join([*chunks, "**"])
 
 
+def _own(service: str) -> tuple[str, ...]:
+    """What every process without units publishes about itself: its health and its info."""
+    return (T.HEALTH.key(service=service, unit=None), T.INFO.key(service=service, unit=None))
+
+
 def _token(service: str, unit: str | None = None) -> tuple[str, ...]:
     return (T.ALIVE.key(service=service, unit=unit),)
 
@@ -75,7 +80,7 @@ ROLES: dict[str, Role] = {
                   token=_token("ntrip")),
     "steering": Role("the steering service: its state and health; answers the steering commands; reads "
                      "the car's speed from the estimator and the receivers",
-                     publish=(T.STEERING_STATE.key(), T.HEALTH.key(service="steering", unit=None)),
+                     publish=(T.STEERING_STATE.key(), *_own("steering")),
                      serve=STEERING_COMMANDS, subscribe=(T.ESTIMATOR_STATE.key(), T.GNSS_FIX.key()),
                      receive=STEERING_INPUTS, token=_token("steering")),
     "estimator": Role("the estimator: reads the devices, publishes the car's state",
@@ -86,7 +91,7 @@ ROLES: dict[str, Role] = {
                 "steering's state (to sweep the wheel when asked)",
                 publish=(_below("sim"),), subscribe=(T.STEERING_STATE.key(),), token=_token("sim")),
     "autopilot": Role("viena-pilot: follows a route, steering with its own lease",
-                      publish=(T.PILOT_STATE.key(), T.PILOT_PATH.key(), T.HEALTH.key(service="pilot", unit=None),
+                      publish=(T.PILOT_STATE.key(), T.PILOT_PATH.key(), *_own("pilot"),
                                *STEERING_INPUTS),
                       subscribe=(T.ESTIMATOR_STATE.key(), T.STEERING_STATE.key(), ESTOP),
                       serve=PILOT_COMMANDS, receive=PILOT_COMMANDS,
@@ -96,8 +101,8 @@ ROLES: dict[str, Role] = {
                   subscribe=("**",), command=(*STEERING_COMMANDS, *PILOT_COMMANDS),
                   publish=(*STEERING_INPUTS, *PILOT_COMMANDS),
                   token=_token("pilot", "{name}"), liveliness=True),
-    "recorder": Role("the black box: reads every key, publishes its own health",
-                     subscribe=("**",), publish=(T.HEALTH.key(service="recorder", unit=None),),
+    "recorder": Role("the black box: reads every key, publishes its own health and info",
+                     subscribe=("**",), publish=_own("recorder"),
                      token=_token("recorder")),
     "observer": Role("anyone else on the car: watches everything and may stop the car",
                      subscribe=("**",), publish=(ESTOP,), liveliness=True),

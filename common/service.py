@@ -18,9 +18,11 @@ everywhere:
 from __future__ import annotations
 
 import argparse
+import itertools
 import logging
 import os
 import signal
+import socket
 import sys
 import threading
 from collections.abc import Callable
@@ -33,7 +35,7 @@ from viena.common.health import Health
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
 from viena.common.payload import reply_bytes
-from viena.common.samples import topics
+from viena.common.samples import info, topics
 from viena.common.samples.topics import Topic
 from viena.common.session import (
     add_common_arguments,
@@ -48,6 +50,9 @@ from viena.common.signals import call_on_signals
 
 STOP_DEADLINE_S = 2.0
 HEALTH_PERIOD_S = 1.0
+#: how often a process says who it is again (its info; at start too): for a black box
+#: that started after it, which repeats the last one at the start of every file
+INFO_PERIOD_S = 10.0
 #: how long the router may take to say whether our liveliness token is taken already
 DUPLICATE_QUERY_S = 2.0
 
@@ -182,12 +187,29 @@ class Service:
         try:
             self._token = self.session.liveliness().declare_token(self.keys.alive(self.name, self.unit))
             health_pub = self.publisher(topics.HEALTH, service=self.name, unit=self.unit)
+            info = self._info_sampler()
             self.start()
+            next_info = clock.monotonic()
             while not self.stopping.wait(HEALTH_PERIOD_S):
                 health_pub.put(self.health.snapshot())
+                if clock.monotonic() >= next_info:
+                    info()
+                    next_info = clock.monotonic() + INFO_PERIOD_S
         finally:
             self._shutdown()
         return 0
+
+    def _info_sampler(self) -> Callable[[], None]:
+        """Puts this process's info (common/samples/info.py), now and each time it is called."""
+        pub = self.publisher(topics.INFO, service=self.name, unit=self.unit)
+        fixed = {"service": self.name, "unit": self.unit, "started": clock.time_ns(), "host": socket.gethostname(),
+                 "versions": info.versions(), "settings": info.settings_map(self.settings)}
+        seq = itertools.count()
+
+        def put() -> None:
+            pub.put({"t": clock.time_ns(), "seq": next(seq), **fixed})
+        put()
+        return put
 
     def running_elsewhere(self) -> str | None:
         """Why this process must not run, if the same unit already runs on this car (its

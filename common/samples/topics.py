@@ -23,7 +23,7 @@ import re
 from dataclasses import dataclass, field
 from enum import StrEnum
 
-from viena.common.samples import corrections, estimator, fix, health, imu, ntrip, pilot, steering, truth
+from viena.common.samples import corrections, estimator, fix, health, imu, info, ntrip, pilot, steering, truth
 from viena.common.schema import Schema
 
 #: every key of every car starts with ROOT/<car>/
@@ -175,6 +175,9 @@ PILOT_PATH = Topic("pilot.path", "pilot/path", Kind.PUT, pilot.PATH, "viena-pilo
 HEALTH = Topic("health", "{service}/{unit}/health", Kind.PUT, health.HEALTH, "every process", "1 Hz", 1.0,
                optional=("unit",), consumers=("monitor", "viena doctor", "foxglove", "record"),
                view=health.monitor_view, read=health.HealthReport.of)
+INFO = Topic("info", "{service}/{unit}/info", Kind.PUT, info.INFO, "every process", "at start, then every 10 s",
+             0.1, latched=True, optional=("unit",), consumers=("monitor", "record", "foxglove"),
+             view=info.monitor_view)
 ALIVE = Topic("alive", "alive/{service}/{unit}", Kind.TOKEN, None, "every process", "while the process runs",
               optional=("unit",),
               consumers=("monitor", "viena list", "a second process of the same name, which refuses to start"))
@@ -183,12 +186,14 @@ ALIVE = Topic("alive", "alive/{service}/{unit}", Kind.TOKEN, None, "every proces
 TOPICS: tuple[Topic, ...] = (
     SIM_TRUTH, GNSS_FIX, GNSS_CORRECTIONS, NTRIP_STATE, IMU_SAMPLE, STEERING_STATE, STEERING_ARM,
     STEERING_SETPOINT, STEERING_CALIBRATION, STEERING_ESTOP, ESTIMATOR_STATE, PILOT_ROUTE, PILOT_CMD,
-    PILOT_STATE, PILOT_PATH, HEALTH, ALIVE)
+    PILOT_STATE, PILOT_PATH, HEALTH, INFO, ALIVE)
 BY_NAME: dict[str, Topic] = {t.name: t for t in TOPICS}
 #: the topic each schema travels on (health's schema on every service's health key)
 BY_SCHEMA: dict[str, Topic] = {t.schema.name: t for t in TOPICS if t.schema is not None}
 #: schemas no longer published, by name -> the topic that carried them (older recordings hold them)
 RETIRED: dict[str, Topic] = {name: t for t in TOPICS for name in t.retired}
+#: the topics of every process ({service}/{unit}/...): matched after all the others
+CATCH_ALL = (ALIVE, HEALTH, INFO)
 #: the steering's commands, in the order a pilot uses them
 STEERING_COMMANDS = (STEERING_ARM, STEERING_SETPOINT, STEERING_CALIBRATION, STEERING_ESTOP)
 
@@ -197,12 +202,12 @@ def topic_of(relative_key: str) -> tuple[Topic, dict[str, str]] | None:
     """The topic a key (after viena/<car>/) belongs to, and its placeholders' values; None for
     a key the table does not know (a tool's own, or a newer car's)."""
     for topic in TOPICS:
-        if topic is HEALTH or topic is ALIVE:
+        if topic in CATCH_ALL:
             continue
         values = topic.match(relative_key)
         if values is not None:
             return topic, values
-    for topic in (ALIVE, HEALTH):            # the catch-all patterns last
+    for topic in CATCH_ALL:                  # the catch-all patterns last
         values = topic.match(relative_key)
         if values is not None:
             return topic, values
