@@ -48,7 +48,8 @@ def test_a_replayed_drive_through_a_fresh_estimator_gives_the_same_states(tmp_pa
         player.play(sensors, clock.Event())
         car.run_for(0.5)                                     # the last state is out
         assert recorder.stop() == replayed
-    assert player.stats.samples == len(sensors) and max(player.stats.lateness_s) == 0.0
+    # never late on the virtual clock: at most the float rounding of `due` (1e-13 s)
+    assert player.stats.samples == len(sensors) and max(player.stats.lateness_s) < 1e-9
 
     recorded, again = states_in(drive), states_in(replayed)
     assert len(recorded) > 1500
