@@ -6,7 +6,7 @@ name is taken), written as `DIR/<drive>_0001.mcap`, `_0002`, ...: each a whole r
 (`.part` while open) with the metadata `drive` and `part`. A file is closed and the next
 opened when it holds `split_bytes` or covers `split_s` seconds of log time, whichever
 first; the next file starts with the last sample of every latched topic (topics.py
-`Topic.latched`: the route's path today), logged at the file's start with its original
+`Topic.latched`: the route's path and every process's info), logged at the file's start with its original
 publish time, and says how many it starts with (metadata `repeats`), so each file replays
 on its own and a reader of the whole drive skips them. After a file closes, the oldest
 closed drive files in DIR are deleted until they hold at most `keep_bytes` (never the open

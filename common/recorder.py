@@ -66,33 +66,65 @@ class RingSubscribers:
     The log time is still when each sample arrived, not when its batch was taken: the
     router stamps every sample it routes (its HLC, zenoh's `timestamping`), so a sample's
     age is the wall clock now less that stamp, and its arrival the receive clock now less
-    its age. Clamped between the last batch's arrival and now (a stamp from another clock,
-    or none: now), and never before the sample taken before it, so log times only grow.
+    its age. Each is clamped between the last batch's end and now (a stamp from another
+    clock); a sample with no stamp takes the time of the one before it in its ring. The
+    rings' samples are then merged by that time (stably: a ring's own order stays), and
+    made never to go back, so log times only grow across every key expression.
     """
 
     def __init__(self, stamp: ReceiveClock):
         self.stamp = stamp
         self._last = stamp()
+        self._said_unstamped = self._said_closed = False
 
     def declare(self, session, keyexprs: list[str]) -> list:
         import zenoh
 
         return [session.declare_subscriber(k, zenoh.handlers.RingChannel(RING_SAMPLES)) for k in keyexprs]
 
-    def take(self, subscribers: list) -> list[tuple[int, str, str, bytes]]:
-        """Every sample waiting, oldest first per subscriber, as (log time, key, encoding, payload)."""
+    def take(self, subscribers: list) -> tuple[list[tuple[int, str, str, bytes]], list[int]]:
+        """Every sample waiting, as (log time, key, encoding, payload) in log time order, and
+        how many each ring gave (one that gave RING_SAMPLES or more may have dropped some)."""
+        from zenoh import ZError
+
         now, wall = self.stamp(), clock.time_ns()
-        last, taken = self._last, []
+        since = self._last
+        rings: list[list[tuple[int, str, str, bytes]]] = []
+        unstamped = 0
         for sub in subscribers:
-            while (sample := sub.try_recv()) is not None:
-                stamped = sample.timestamp
-                if stamped is not None:
-                    last = max(last, min(now, now - wall + stamped.get_time_as_ntp64().as_nanos()))
-                else:
-                    last = now
-                taken.append((last, str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
+            ring: list[tuple[int, str, str, bytes]] = []
+            rings.append(ring)
+            at = since
+            try:
+                while (sample := sub.try_recv()) is not None:
+                    stamped = sample.timestamp
+                    if stamped is not None:
+                        at = max(since, min(now, now - wall + stamped.get_time_as_ntp64().as_nanos()))
+                    else:
+                        unstamped += 1
+                    ring.append((at, str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
+            except ZError as exc:           # the subscriber or its session is gone: keep what came
+                if not self._said_closed:
+                    self._said_closed = True
+                    log.warning("a recorder's subscriber cannot be read (%s): its samples are no longer taken",
+                                exc)
+        counts = [len(ring) for ring in rings]
+        total = sum(counts)
+        if total and unstamped == total and not self._said_unstamped:
+            self._said_unstamped = True
+            log.warning("%d samples came without a zenoh timestamp: logged at the batch before's time, not "
+                        "their arrival (is `timestamping` on in the router?)", total)
+        taken = rings[0] if len(rings) == 1 else sorted((s for ring in rings for s in ring), key=_log_time)
+        last, grown = since, []
+        for at, key, encoding, data in taken:
+            last = max(last, at)
+            grown.append((last, key, encoding, data))
         self._last = now
-        return taken
+        return grown, counts
+
+
+def _log_time(taken: tuple) -> int:
+    return taken[0]
 
 
 class Recorder:
@@ -100,9 +132,10 @@ class Recorder:
 
     `start()` declares the subscribers (unless `listen()` did already: samples queue from
     then on, while a writer is still being made, such as the black box's, which repairs
-    the last run's file first) and starts writing; `stop()` undeclares them, writes what
-    is queued and closes the file. A write error (disk full, a card gone read-only) stops the writing:
-    `error` then holds it, `failed` is set and `on_error(exc)` is called once, from the
+    the last run's file first) and starts writing; `stop()` writes every sample heard
+    until then (batched: those still in zenoh's rings too), undeclares them and closes
+    the file. A write error (disk full, a card gone read-only) stops the writing: `error`
+    then holds it, `failed` is set and `on_error(exc)` is called once, from the
     writing thread; the subscribers stay, their samples are dropped. `on_sample()` is
     called for every sample heard (a silence warning's `heard`).
 
@@ -123,6 +156,9 @@ class Recorder:
         self.failed = clock.Event()
         self._arrived: deque = deque()     # (log time, key, encoding, payload): zenoh's threads append
         self._rings = RingSubscribers(self.clock) if batched else None
+        #: takes in which a ring gave RING_SAMPLES or more: zenoh may have dropped its oldest
+        self.possibly_dropped = 0
+        self._largest_batch = 0
         self._stopping = clock.Event()
         self._subscribers: list[zenoh.Subscriber] = []
         self._thread = clock.Thread(target=self._write_loop, name="record-writer", daemon=True)
@@ -153,8 +189,11 @@ class Recorder:
         return self.writer.samples
 
     def backlog(self) -> int:
-        """Samples heard and not yet written (those still in zenoh's ring not counted)."""
-        return len(self._arrived)
+        """How far behind the writer is: the samples heard and not yet written, or, batched
+        (what zenoh's rings hold is not known until taken), the largest batch taken since
+        the last call."""
+        largest, self._largest_batch = self._largest_batch, 0
+        return max(len(self._arrived), largest)
 
     def _write_loop(self) -> None:
         """Write what arrived, a batch every BATCH_S, so the thread wakes some 20 times a
@@ -175,7 +214,13 @@ class Recorder:
         """What arrived so far, oldest first (zenoh's threads go on adding meanwhile)."""
         arrived = self._arrived
         if self._rings is not None:
-            rung = self._rings.take(self._subscribers)
+            rung, counts = self._rings.take(self._subscribers)
+            self._largest_batch = max(self._largest_batch, len(rung))
+            full = sum(n >= RING_SAMPLES for n in counts)
+            if full:
+                self.possibly_dropped += full
+                log.warning("the writer fell %d samples behind: zenoh's ring (%d) may have dropped the oldest",
+                            max(counts), RING_SAMPLES)
             if self.on_sample is not None:
                 for _ in rung:
                     self.on_sample()
@@ -220,11 +265,20 @@ class Recorder:
         self._subscribers.clear()
 
     def stop(self) -> Path | None:
-        """Stop listening, write the backlog, close. The final path, or None if the
-        file could not be completed (it stays as `.part`)."""
-        self.unlisten()
-        self._stopping.set()
-        self._thread.join()
+        """Write every sample heard until now, stop listening, close. The final path, or None
+        if the file could not be completed (it stays as `.part`).
+
+        Batched, the writing thread stops first, taking what is left in zenoh's rings, and
+        the subscribers go after (undeclaring one deletes its ring); with callbacks, the
+        subscribers go first, so nothing is appended after the thread's last take."""
+        if self._rings is not None:
+            self._stopping.set()
+            self._thread.join()
+            self.unlisten()
+        else:
+            self.unlisten()
+            self._stopping.set()
+            self._thread.join()
         if self.error is None:
             try:
                 return self.writer.close()

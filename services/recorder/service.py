@@ -51,6 +51,12 @@ class RecorderService(Service):
     name = "recorder"
     settings_class = RecorderSettings
 
+    def __init__(self, args):
+        super().__init__(args)
+        # its own samples (the health) reach it on its own session, not through the router:
+        # with timestamping on, zenoh stamps them here, so they too keep their arrival time
+        self.zenoh_config.insert_json5("timestamping/enabled", "true")
+
     def start(self) -> None:
         s = self.settings
         directory = Path(s.directory).expanduser() if s.directory else drives_dir()
@@ -99,10 +105,11 @@ class RecorderService(Service):
     def _report(self) -> None:
         """Once a second, not once a sample: the samples written (their rate is the health's),
         and where they go."""
-        written = 0
+        written = dropped = 0
         while not self.stopping.wait(STATE_PERIOD_S):
             try:
                 written = self._say_state(written)
+                dropped = self._say_dropped(dropped)
             except Exception:                   # the health must go on saying what it can
                 self.log.exception("the recorder's state could not be read")
 
@@ -116,6 +123,14 @@ class RecorderService(Service):
         self.health.set("drive_bytes", self.writer.size)
         self.health.set("backlog", self.recorder.backlog())
         return samples
+
+    def _say_dropped(self, said: int) -> int:
+        """`possibly_dropped` (red): a take in which a ring was full, so zenoh may have let
+        the oldest go (the writer fell RING_SAMPLES behind)."""
+        dropped = self.recorder.possibly_dropped
+        if dropped > said:
+            self.health.error("possibly_dropped", dropped - said)
+        return dropped
 
     def stop(self) -> None:
         recorder = getattr(self, "recorder", None)

@@ -3,10 +3,14 @@ their arrival times (the router's stamps), and a sample's own `t` read at once w
 comes first in the map."""
 from __future__ import annotations
 
+import logging
+
 import msgpack
 import pytest
+import zenoh
 
-from viena.common.recorder import RingSubscribers
+from viena.common import recorder as recorder_module
+from viena.common.recorder import Recorder, RingSubscribers
 from viena.common.recording import sample_time
 
 WALL = 1_790_000_000_000_000_000        # the wall clock at the batch, ns
@@ -35,11 +39,19 @@ class Sample:
 
 
 class Ring:
-    def __init__(self, samples: list[Sample]):
-        self.samples = samples
+    def __init__(self, samples: list[Sample], closed: bool = False):
+        self.samples, self.closed = samples, closed
 
     def try_recv(self) -> Sample | None:
-        return self.samples.pop(0) if self.samples else None
+        if self.samples:
+            return self.samples.pop(0)
+        if self.closed:
+            raise zenoh.ZError("Undeclared subscriber")
+        return None
+
+
+def keys(taken: list) -> list[str]:
+    return [key for _, key, *_ in taken]
 
 
 class Clocks:
@@ -59,9 +71,10 @@ def rings(monkeypatch):
 
 
 def test_a_batch_keeps_each_samples_arrival_by_its_router_stamp(rings):
-    taken = rings.take([Ring([Sample(WALL - 40_000_000), Sample(WALL - 30_000_000), Sample(WALL - 1_000)])])
+    taken, counts = rings.take([Ring([Sample(WALL - 40_000_000), Sample(WALL - 30_000_000), Sample(WALL - 1_000)])])
     assert [t for t, *_ in taken] == [NOW - 40_000_000, NOW - 30_000_000, NOW - 1_000]
     assert taken[0][1:] == ("viena/elettra/imu/razor0/sample", "application/msgpack;viena.imu.sample/1", b"\x80")
+    assert counts == [3]
 
 
 def test_log_times_stay_within_the_batch_and_only_grow(rings):
@@ -69,9 +82,76 @@ def test_log_times_stay_within_the_batch_and_only_grow(rings):
               WALL - 20_000_000,
               WALL - 25_000_000,       # stamped before the one taken before it: not earlier than that
               WALL + 10**9,            # ahead of this clock: now
-              None]                    # no stamp: now
-    taken = rings.take([Ring([Sample(s) for s in stamps])])
+              None]                    # no stamp: the one before it
+    taken, _ = rings.take([Ring([Sample(s) for s in stamps])])
     assert [t for t, *_ in taken] == [NOW - 50_000_000, NOW - 20_000_000, NOW - 20_000_000, NOW, NOW]
+
+
+def test_a_sample_without_a_stamp_does_not_push_the_later_ones_to_the_batch_time(rings, caplog):
+    stamps = [WALL - 40_000_000, None, WALL - 30_000_000, WALL - 20_000_000]
+    taken, _ = rings.take([Ring([Sample(s) for s in stamps])])
+    assert [t for t, *_ in taken] == [NOW - 40_000_000, NOW - 40_000_000, NOW - 30_000_000, NOW - 20_000_000]
+    assert "without a zenoh timestamp" not in caplog.text
+
+
+def test_a_batch_with_no_stamp_at_all_is_said_once(monkeypatch, caplog):
+    monkeypatch.setattr("viena.common.recorder.clock.time_ns", lambda: WALL)
+    times = iter(range(0, 10**10, 50_000_000))
+    rings = RingSubscribers(lambda: next(times))  # type: ignore[arg-type]
+    with caplog.at_level(logging.WARNING, "viena.recorder"):
+        for _ in range(3):
+            rings.take([Ring([Sample(None), Sample(None)])])
+    assert caplog.text.count("without a zenoh timestamp") == 1
+
+
+def test_several_rings_are_merged_by_arrival_not_clamped_by_each_other(rings):
+    imu = "viena/elettra/imu/razor0/sample"
+    gnss = "viena/elettra/gnss/gnss0/fix"
+    taken, counts = rings.take([
+        Ring([Sample(WALL - 10_000_000, imu), Sample(WALL - 5_000_000, imu)]),
+        Ring([Sample(WALL - 40_000_000, gnss), Sample(WALL - 30_000_000, gnss)]),
+    ])
+    assert [t for t, *_ in taken] == [NOW - 40_000_000, NOW - 30_000_000, NOW - 10_000_000, NOW - 5_000_000]
+    assert keys(taken) == [gnss, gnss, imu, imu]
+    assert counts == [2, 2]
+
+
+def test_a_ring_without_stamps_takes_the_last_batchs_end(rings):
+    imu, path = "viena/elettra/imu/razor0/sample", "viena/elettra/pilot/path"
+    taken, _ = rings.take([
+        Ring([Sample(WALL - 30_000_000, imu), Sample(WALL - 10_000_000, imu)]),
+        Ring([Sample(None, path)]),                  # the last batch's end: before everything
+    ])
+    assert keys(taken) == [path, imu, imu]
+    assert [t for t, *_ in taken] == [NOW - 50_000_000, NOW - 30_000_000, NOW - 10_000_000]
+
+
+def test_a_closed_subscriber_gives_what_it_had_and_is_said_once(rings, caplog):
+    with caplog.at_level(logging.WARNING, "viena.recorder"):
+        taken, counts = rings.take([Ring([Sample(WALL - 1_000)], closed=True), Ring([Sample(WALL - 2_000)])])
+    assert counts == [1, 1] and len(taken) == 2
+    assert caplog.text.count("cannot be read") == 1
+
+
+class Kept:
+    samples = 0
+
+    def __init__(self):
+        self.written = []
+
+    def write(self, key, encoding, log_time, data):
+        self.written.append(key)
+
+
+def test_the_largest_batch_is_the_backlog_and_a_full_ring_may_have_dropped(monkeypatch):
+    monkeypatch.setattr(recorder_module, "RING_SAMPLES", 3)
+    rec = Recorder(None, [], Kept(), batched=True)  # type: ignore[arg-type]
+    rec._subscribers = [Ring([Sample(WALL - 1_000)] * 3), Ring([Sample(WALL - 1_000)] * 2)]
+    rec._write(rec._taken())
+    rec._subscribers = [Ring([Sample(WALL - 1_000)]), Ring([])]
+    rec._write(rec._taken())
+    assert rec.backlog() == 5 and rec.backlog() == 0          # since the last asked
+    assert rec.possibly_dropped == 1
 
 
 @pytest.mark.parametrize("value", [
