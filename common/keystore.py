@@ -312,17 +312,6 @@ class KeyStore:
                                 f"re-issue with `viena keys issue {ident.role} {name} --force`")
         return ident
 
-    def identity_files(self, name: str) -> tuple[Path, Path]:
-        """The certificate and key of `name`, found but not read (no cryptography loaded):
-        for a program whose identity `viena up` checked (`identity`) and whose files have
-        not changed since (common/secure.py `still_checked`)."""
-        self._require_store()
-        cert, key = self._cert_path(name), self._cert_path(name).with_suffix(".key")
-        for path in (cert, key):
-            if not path.exists():
-                raise SecurityError(f"no {path.name} in {self.dir}: `viena keys list` shows what is there")
-        return cert, key
-
     def router(self) -> Identity:
         ident = self.identity(ROUTER)
         if ident.role != ROUTER_ROLE:

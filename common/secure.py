@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import json
 import logging
+from pathlib import Path
 
 from viena.common import clock
 from viena.common.access import access_control
-from viena.common.keystore import Identity, KeyStore
+from viena.common.keystore import Identity, KeyStore, SecurityError
 
 SECURE_SCHEMES = ("tls/", "quic/")
 LOOPBACK_HOSTS = ("127.", "localhost", "[::1]", "::1")
@@ -56,13 +57,22 @@ def secure_client(conf, store: KeyStore, name: str, checked: str | None = None) 
     before it starts them): while that check still holds (`still_checked`), the identity's
     files are only found, and cryptography, some 10 MB of every process, is not loaded."""
     if still_checked(store, name, checked):
-        cert, key = store.identity_files(name)
+        cert, key = identity_files(store, name)
     else:
         identity = store.identity(name)
         cert, key = identity.cert, identity.key
     _tls_common(conf, store)
     _set(conf, "transport/link/tls/connect_certificate", str(cert))
     _set(conf, "transport/link/tls/connect_private_key", str(key))
+
+
+def identity_files(store: KeyStore, name: str) -> tuple[Path, Path]:
+    """The certificate and key of `name`, found but not read (no cryptography loaded)."""
+    cert = store.dir / f"{name}.pem"
+    for path in (store.ca_cert, cert, cert.with_suffix(".key")):
+        if not path.exists():
+            raise SecurityError(f"no {path.name} in {store.dir}: `viena keys list` shows what is there")
+    return cert, cert.with_suffix(".key")
 
 
 def checked_identities(identities: list[Identity], checked_at: float) -> str:
