@@ -2,9 +2,11 @@
 from __future__ import annotations
 
 import socket
+import threading
 
 import pytest
 import serial
+from vienatest import wait_until
 
 from viena.common import urlhandler
 from viena.common.urlhandler import protocol_socket
@@ -53,3 +55,26 @@ def test_a_closed_peer_is_a_serial_error(link):
     peer.close()
     with pytest.raises(serial.SerialException, match="disconnected"):
         port.read(1)
+
+
+def test_what_arrived_is_waiting_before_any_read(link):
+    port, peer = link
+    assert port.in_waiting == 0
+    peer.sendall(b"z\rt1818\r")
+    assert wait_until(lambda: port.in_waiting == 8, 2.0)
+    assert port.read(8) == b"z\rt1818\r"
+
+
+def test_a_write_larger_than_the_socket_takes_at_once_goes_whole(link):
+    port, peer = link
+    data = bytes(range(256)) * 8192                       # 2 MB: more than the kernel buffers
+    got = bytearray()
+
+    def drain() -> None:
+        while len(got) < len(data):
+            got.extend(peer.recv(65536))
+    reader = threading.Thread(target=drain)
+    reader.start()
+    assert port.write(data) == len(data)
+    reader.join(timeout=10)
+    assert bytes(got) == data

@@ -13,6 +13,11 @@ As on a real bus a sender does not hear its own frame, a closed channel (`C`) ne
 sends nor receives, a listen-only channel (`L`) receives only, and a client set to a
 different bitrate than the bus hears nothing and is heard by no one.
 
+As a USB adapter, the hub hands a client what it has at one moment in one write: the
+acknowledgements of a client's frames wait up to one USB frame (1 ms) for the frames the
+bus answers with (the TPDOs a SYNC brings), and frames that went by together (TPDO1 and
+TPDO2) go together. A host then wakes once a SYNC period, not three times.
+
 As on a real bus, anyone plugged in may talk: a CAN monitor beside the steering service is
 one more client. Plugged in means, on loopback, a process of the hub's own user
 (peers.py); others are refused, with a log line.
@@ -40,6 +45,10 @@ BITRATES = {"S0": 10_000, "S1": 20_000, "S2": 50_000, "S3": 100_000, "S4": 125_0
 HW_VERSION = "V1013"          # what a LAWICEL CAN232 / CANable says to `V`
 SERIAL_NUMBER = "NVIEN"
 MAX_LINE = 64                 # longest valid slcan line is 27 characters (T + 8 + 1 + 16 + ts)
+#: a USB adapter answers in the host's next USB transfer: the acknowledgements of a client's
+#: frames wait this long for what the bus answers them with, to go in one write together
+USB_FRAME_S = 0.001
+ACKS = (b"z\r", b"Z\r")
 
 
 class SlcanError(ValueError):
@@ -98,6 +107,8 @@ class _Client:
         self.bitrate = bus_bitrate
         self.bus_bitrate = bus_bitrate
         self.send_lock = threading.Lock()
+        self.owed = bytearray()              # acknowledgements held for the next write (send_lock)
+        self.owed_until = 0.0                # when they go on their own (0: nothing held)
         self.alive = True
 
     @property
@@ -178,7 +189,7 @@ class SlcanHub:
         sel.register(self._server, selectors.EVENT_READ)
         try:
             while not self._stop.is_set():
-                for key, _ in sel.select(0.1):
+                for key, _ in sel.select(self._flush_owed()):
                     if key.fileobj is self._server:
                         self._accept(sel)
                     else:
@@ -219,6 +230,7 @@ class SlcanHub:
             return
         client.buffer.extend(data)
         replies = bytearray()
+        sent: list[can.Message] = []
         while True:
             end = _line_end(client.buffer)
             if end < 0:
@@ -228,12 +240,16 @@ class SlcanHub:
                 break
             line = client.buffer[:end].decode("ascii", "replace").strip("\n")
             del client.buffer[:end + 1]
-            replies += self._command(client, line)
+            replies += self._command(client, line, sent)
         if replies:
-            self._send(client, bytes(replies))
+            # only acknowledgements of frames: they wait a USB frame for the bus's answers
+            self._send(client, bytes(replies), hold=bool(sent) and not _without_acks(replies))
+        if sent:
+            self._to_clients(sent, exclude=client)
 
-    def _command(self, client: _Client, line: str) -> bytes:
-        """Execute one slcan command; the reply bytes."""
+    def _command(self, client: _Client, line: str, sent: list[can.Message]) -> bytes:
+        """Execute one slcan command; the reply bytes. A frame goes on the virtual bus at
+        once and is added to `sent`, for the other clients."""
         cmd = line[:1]
         if cmd in ("t", "T", "r", "R"):
             if not client.talks:
@@ -244,7 +260,8 @@ class SlcanHub:
             except SlcanError as exc:
                 log.debug("client %s: %s", client.peer, exc)
                 return ERROR
-            self._deliver(msg, sender=client)
+            self._deliver(msg)
+            sent.append(msg)
             return b"z\r" if cmd in ("t", "r") else b"Z\r"
         if cmd == "O":
             client.open, client.listen_only = True, False
@@ -281,46 +298,80 @@ class SlcanHub:
         return ERROR
 
     # -- the bus -------------------------------------------------------------------------
-    def _deliver(self, msg: can.Message, sender: _Client | None) -> None:
-        """A frame on the wire: every other node hears it."""
+    def _deliver(self, msg: can.Message) -> None:
+        """A client's frame on the wire: the in-process nodes hear it now (the other
+        clients once the client's write is read through: `_read`)."""
         self.frames_from_clients += 1
         try:
             self._bus.send(msg)
         except can.CanError as exc:
             log.warning("virtual bus refused a frame: %s", exc)
-        self._to_clients(msg, exclude=sender)
 
     def _from_bus(self) -> None:
         while not self._stop.is_set():
             try:
                 msg = self._bus.recv(timeout=0.1)
+                msgs = []
+                while msg is not None:           # and what came with it (TPDO1 and TPDO2 on a SYNC)
+                    msgs.append(msg)
+                    msg = self._bus.recv(timeout=0)
             except can.CanError:
                 break
-            if msg is not None:
-                self._to_clients(msg, exclude=None)
+            if msgs:
+                self._to_clients(msgs, exclude=None)
 
-    def _to_clients(self, msg: can.Message, exclude: _Client | None) -> None:
+    def _to_clients(self, msgs: list[can.Message], exclude: _Client | None) -> None:
+        """Frames that went by at one moment, to every client that hears them: in one write
+        each, as a USB adapter hands over back-to-back frames in one transfer."""
         with self._clients_lock:
             targets = [c for c in self._clients if c is not exclude and c.hears]
         if not targets:
             return
-        plain = format_frame(msg)
+        plain = b"".join(format_frame(msg) for msg in msgs)
         for c in targets:
-            data = plain if not c.timestamps else format_frame(msg, self._ms())
+            if c.timestamps:
+                ms = self._ms()
+                data = b"".join(format_frame(msg, ms) for msg in msgs)
+            else:
+                data = plain
             if self._send(c, data):
-                self.frames_to_clients += 1
+                self.frames_to_clients += len(msgs)
 
     def _ms(self) -> int:
         return int((time.monotonic() - self._t0) * 1000)
 
-    def _send(self, client: _Client, data: bytes) -> bool:
+    def _send(self, client: _Client, data: bytes, hold: bool = False) -> bool:
+        """`data` to the client after what it is owed, in one write; or, `hold`, owed too."""
         try:
             with client.send_lock:
-                client.sock.sendall(data)
+                if hold:
+                    client.owed += data
+                    client.owed_until = client.owed_until or time.monotonic() + USB_FRAME_S
+                    return True
+                if client.owed:
+                    data, client.owed_until = bytes(client.owed) + data, 0.0
+                    client.owed.clear()
+                if data:
+                    client.sock.sendall(data)
             return True
         except OSError as exc:
             self._drop(client, f"send failed ({exc})")
             return False
+
+    def _flush_owed(self) -> float:
+        """Send what is owed past its USB frame; seconds until the next is due (at most 0.1)."""
+        with self._clients_lock:
+            owing = [c for c in self._clients if c.owed_until]
+        wait, now = 0.1, time.monotonic()
+        for c in owing:
+            due = c.owed_until
+            if not due:
+                continue                         # sent meanwhile, with frames
+            if due <= now:
+                self._send(c, b"")
+            else:
+                wait = min(wait, due - now)
+        return wait
 
     def _drop(self, client: _Client, why: str) -> None:
         """Forget a client; its socket is shut down here and closed by the serving thread,
@@ -336,6 +387,11 @@ class SlcanHub:
         except OSError:
             pass
         log.info("slcan client %s:%s %s", *client.peer[:2], why)
+
+
+def _without_acks(replies: bytearray) -> bytes:
+    """The replies other than acknowledgements of frames."""
+    return bytes(replies).replace(ACKS[0], b"").replace(ACKS[1], b"")
 
 
 def _line_end(buffer: bytearray) -> int:

@@ -191,7 +191,7 @@ class SteeringController:
             next_t += period
             delay = next_t - clocks.monotonic()
             if delay > 0:
-                self._stop.wait(delay)
+                clocks.sleep(delay)              # a plain sleep: stop() waits a period at most
             elif delay < -10 * period:           # fell far behind (suspended): resync
                 next_t = clocks.monotonic()
 

@@ -10,7 +10,7 @@ import can
 import pytest
 from vienatest import wait_until
 
-from viena.common.twin.slcan_hub import SlcanHub, format_frame, parse_frame
+from viena.common.twin.slcan_hub import SlcanHub, _Client, format_frame, parse_frame
 
 _n = itertools.count()
 
@@ -148,3 +148,56 @@ def test_frame_text_round_trips():
         assert (back.arbitration_id, back.is_extended_id, back.is_remote_frame, back.dlc, bytes(back.data)) == \
             (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.dlc, bytes(msg.data))
     assert format_frame(can.Message(arbitration_id=0x12, data=b"\xab", is_extended_id=False), 61_000) == b"t0121AB03E8\r"
+
+
+def test_a_frame_is_acknowledged_before_the_frames_that_answer_it(hub, buses):
+    sim = buses(interface="virtual", channel=hub.channel)
+    answers = [can.Message(arbitration_id=0x181, data=b"\x01\x02", is_extended_id=False),
+               can.Message(arbitration_id=0x281, data=b"\x03", is_extended_id=False)]
+
+    def answer_sync() -> None:
+        if (m := sim.recv(2.0)) is not None and m.arbitration_id == 0x080:
+            for a in answers:
+                sim.send(a)
+    drive = threading.Thread(target=answer_sync)
+    with raw_client(hub) as s:
+        assert ask(s, b"O\r", 1) == b"\r"
+        drive.start()
+        assert ask(s, b"t0800\r", 3) == b"z\r" + b"".join(format_frame(a) for a in answers)
+    drive.join()
+
+
+class _Writes:
+    """A client's socket that keeps each write."""
+
+    def __init__(self):
+        self.writes: list[bytes] = []
+
+    def sendall(self, data: bytes) -> None:
+        self.writes.append(bytes(data))
+
+    def close(self) -> None:
+        pass
+
+
+def test_what_a_client_is_owed_at_one_moment_goes_in_one_write():
+    hub = SlcanHub(f"hub-writes-{next(_n)}")           # not started: its two threads' steps by hand
+    try:
+        client = _Client(_Writes(), ("127.0.0.1", 0), hub.bitrate)
+        client.open = True
+        hub._clients.append(client)
+        tpdos = [can.Message(arbitration_id=0x181 + 0x100 * k, data=bytes([k] * 6), is_extended_id=False)
+                 for k in range(2)]
+        hub._send(client, b"z\rz\rz\r", hold=True)      # a period's frames acknowledged: held a USB frame
+        assert client.sock.writes == []
+        hub._to_clients(tpdos, exclude=None)            # the drive's answers to the SYNC
+        assert client.sock.writes == [b"z\rz\rz\r" + b"".join(format_frame(m) for m in tpdos)]
+        hub._send(client, b"z\r", hold=True)            # nothing answers: it goes on its own
+
+        def flushed() -> bool:
+            hub._flush_owed()                           # the serving thread's step
+            return client.sock.writes[-1] == b"z\r"
+        assert wait_until(flushed, 1.0)
+        assert len(client.sock.writes) == 2 and not client.owed
+    finally:
+        hub.stop()

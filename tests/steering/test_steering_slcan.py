@@ -54,3 +54,29 @@ def test_frames_come_in_whole_and_the_adapters_acks_are_skipped(pair):
     assert [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in got] == [
         (m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in sent]
     assert ours.recv(0.05) is None                          # nothing else: no ack became a frame
+
+
+class _Port:
+    """What an adapter sent, as a serial port serves it: all of it waiting at once."""
+
+    def __init__(self, data: bytes):
+        self.data = bytearray(data)
+
+    def read(self, n: int) -> bytes:
+        out = bytes(self.data[:n])
+        del self.data[:n]
+        return out
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.data)
+
+
+def test_a_garbled_byte_spoils_its_line_and_not_the_bus():
+    bus = SlcanBus.__new__(SlcanBus)                       # the reading half alone, on a port of bytes
+    bus._buffer, bus.serialPortOrig = bytearray(), _Port(b"t18\xff\r\rt1812AB01\r")
+    bus._queue = __import__("queue").Queue()
+    assert bus._read(0.1) == "t18\ufffd\r"                  # python-can then refuses that line alone
+    assert bus._read(0.1) == "\r"
+    msg, _ = bus._recv_internal(0.1)
+    assert (msg.arbitration_id, bytes(msg.data)) == (0x181, b"\xab\x01")

@@ -259,10 +259,12 @@ class EposDrive:
             if target_qc is not None:
                 self._target_qc = int(target_qc)
             frames = [(self._rpdo.cob_id, RPDO1.pack(self._controlword, self._target_qc)), (self._net.sync.cob_id, b"")]
-            if now >= self._next_heartbeat:
+            heartbeat_due = now >= self._next_heartbeat
+            if heartbeat_due:
                 frames.insert(0, (0x700 + self.settings.host_node_id, HEARTBEAT))
-                self._next_heartbeat = now + self.settings.host_heartbeat_period_s
             self._send_all(frames)
+            if heartbeat_due:                   # not before it went: a failed write retries it next period
+                self._next_heartbeat = now + self.settings.host_heartbeat_period_s
 
     def command(self, controlword: int) -> None:
         """Send a controlword now (the RPDO carries the current target with it)."""
@@ -279,8 +281,7 @@ class EposDrive:
             self._send_rpdo()
 
     def _send_rpdo(self) -> None:
-        self._net.send_message(self._rpdo.cob_id, RPDO1.pack(self._controlword, self._target_qc))
-        self.tx_frames += 1
+        self._send_all([(self._rpdo.cob_id, RPDO1.pack(self._controlword, self._target_qc))])
 
     def _send_all(self, frames: list[tuple[int, bytes]]) -> None:
         """These frames in order: with one write where the bus can (driver/slcan.py)."""

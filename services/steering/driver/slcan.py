@@ -8,11 +8,13 @@ frame sent) and sends two or three frames every SYNC period: per byte and per fr
 Python calls and system calls were most of the service's CPU on the simulated drive.
 Here a read takes what the port holds in one call and serves lines from it, standard
 data frames are parsed at once and the acknowledgements skipped without leaving the bus;
-`send_frames` puts several frames in one write (one system call, and the adapter
-acknowledges them in one reply). The protocol is python-can's: lines, commands and parsing are unchanged.
+`send_frames` puts several frames in one write (one system call; the adapter's
+acknowledgements, one per frame, then come back together). The protocol is python-can's:
+lines, commands and parsing are unchanged.
 """
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterable
 
 import can
@@ -46,9 +48,9 @@ class SlcanBus(slcanBus):
                         if waiting:
                             held += port.read(waiting)
                         end = _line_end(held)
-                    elif deadline.expired():
+                    if end < 0 and deadline.expired():     # (a port that streams without a CR too)
                         return None
-        line = held[:end + 1].decode()
+        line = held[:end + 1].decode("ascii", "replace")    # a garbled byte spoils its line, not the bus
         del held[:end + 1]
         return line
 
@@ -73,10 +75,17 @@ class SlcanBus(slcanBus):
 
     def send_frames(self, frames: Iterable[tuple[int, bytes]]) -> None:
         """Send these standard data frames (id, data), in order, with one write."""
-        data = "".join(f"t{can_id:03X}{len(payload)}{payload.hex().upper()}\r" for can_id, payload in frames)
+        data = b"".join([_line(can_id, payload) for can_id, payload in frames])
         with error_check("Could not write to serial device"):
-            self.serialPortOrig.write(data.encode())
+            self.serialPortOrig.write(data)
             self.serialPortOrig.flush()
+
+
+@functools.lru_cache(maxsize=256)
+def _line(can_id: int, payload: bytes) -> bytes:
+    """A standard data frame's slcan line: the period's frames repeat (SYNC, heartbeat, an
+    RPDO holding its target), so each is formatted once."""
+    return f"t{can_id:03X}{len(payload)}{payload.hex().upper()}\r".encode()
 
 
 def _line_end(held: bytearray) -> int:

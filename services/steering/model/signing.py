@@ -34,7 +34,7 @@ SEQ_MAX = 2 ** 63 - 1          # seq and t are int64 on the wire
 def setpoint_mac(lease: str, unit: str, value: float, seq: int, t_ns: int | None) -> str:
     """The code of one setpoint (`unit` "deg" or "rad", the angle as sent)."""
     message = DOMAIN + unit.encode() + struct.pack(">dqq", float(value), seq, t_ns or 0)
-    return hmac.new(lease.encode(), message, hashlib.sha256).hexdigest()[:MAC_HEX_DIGITS]
+    return hmac.digest(lease.encode(), message, hashlib.sha256).hex()[:MAC_HEX_DIGITS]     # one C call
 
 
 def macs_match(expected: str, given: object) -> bool:
