@@ -45,7 +45,8 @@ def parse_payload(data: bytes | bytearray | memoryview, encoding: str | None = N
     if not data:
         raise PayloadError("empty payload: expected a map such as {\"angle_deg\": 1.0}")
     if is_json_text(data, encoding):
-        if _json_depth(data) > max_depth:
+        # (the opening brackets bound the depth: most payloads need no walk at all)
+        if data.count(b"[") + data.count(b"{") > max_depth and _json_depth(data) > max_depth:
             raise PayloadError(f"nested deeper than {max_depth} levels")
         try:
             value = json.loads(data.decode("utf-8"), parse_constant=_reject_constant)
