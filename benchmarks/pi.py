@@ -254,10 +254,13 @@ class Setpoints:
 
 
 # -- the programs' CPU and memory ---------------------------------------------------------
-def rss_mb(pid: int) -> tuple[float, float]:
-    """(resident now, its peak) in MB."""
-    with open(f"/proc/{pid}/status") as f:
-        fields = dict(line.split(":", 1) for line in f if ":" in line)
+def rss_mb(pid: int) -> tuple[float, float] | None:
+    """(resident now, its peak) in MB; None once it is gone."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            fields = dict(line.split(":", 1) for line in f if ":" in line)
+    except (FileNotFoundError, ProcessLookupError):
+        return None
     return int(fields["VmRSS"].split()[0]) / 1024, int(fields["VmHWM"].split()[0]) / 1024
 
 
@@ -335,14 +338,14 @@ def measure(session, env, quota: CpuQuota, fox_pid: int, fox_port: int, seconds:
         t1 = time.monotonic()
         c1 = {name: process_cpu(pid) for name, pid in programs.items()}
         b1, throttled1 = directory_bytes(drives), quota.throttling()
-        memory = {name: rss_mb(pid) for name, pid in programs.items() if c1[name] is not None}
+        memory = {name: rss for name, pid in programs.items() if (rss := rss_mb(pid)) is not None}
     finally:
         setpoints.stop()
         client.close()
         watch.close()
     span = t1 - t0
     cpu = {name: (after - before) / span for name, before, after in ((n, c0[n], c1[n]) for n in programs)
-           if before is not None and after is not None}      # a program that died meanwhile: left out, said
+           if before is not None and after is not None and name in memory}   # died meanwhile: left out, said
 
     with setpoints.lock:
         trips_ms = [rt * 1e3 for sent, rt in setpoints.round_trips if t0 <= sent < t1]

@@ -76,6 +76,9 @@ STANDARD_IDENTITIES = {
     "estimator": "estimator", "sim": "sim", "autopilot": "autopilot", "pilot": "pilot",
     "observer": "observer", "ntrip": "ntrip", "recorder": "recorder",
 }
+#: the identity a program presents where it is not the program's own name (`viena up`
+#: checks these for it): the pilot program drives as `autopilot`, the person as `pilot`
+PROGRAM_IDENTITY = {"pilot": "autopilot"}
 CA_DAYS = 3650
 ROUTER_DAYS = 1825
 IDENTITY_DAYS = 365

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from pathlib import Path
 
 from viena.common import clock
 from viena.common.access import access_control
-from viena.common.keystore import Identity, KeyStore, SecurityError
+from viena.common.keystore import Identity, KeyStore
 
 SECURE_SCHEMES = ("tls/", "quic/")
 LOOPBACK_HOSTS = ("127.", "localhost", "[::1]", "::1")
@@ -24,7 +25,7 @@ log = logging.getLogger("viena.router")
 
 
 #: set by `viena up` for the programs it starts once it has checked their identities:
-#: "CHECKED_AT:FIRST_EXPIRY", both Unix seconds (`checked_identities`)
+#: "CHECKED_AT:FIRST_EXPIRY:NAME,NAME,...", times in Unix seconds (`checked_identities`)
 IDENTITIES_CHECKED = "VIENA_IDENTITIES_CHECKED"
 
 
@@ -67,34 +68,36 @@ def secure_client(conf, store: KeyStore, name: str, checked: str | None = None) 
 
 
 def identity_files(store: KeyStore, name: str) -> tuple[Path, Path]:
-    """The certificate and key of `name`, found but not read (no cryptography loaded)."""
+    """The certificate and key of `name` (`still_checked` found them unchanged)."""
     cert = store.dir / f"{name}.pem"
-    for path in (store.ca_cert, cert, cert.with_suffix(".key")):
-        if not path.exists():
-            raise SecurityError(f"no {path.name} in {store.dir}: `viena keys list` shows what is there")
     return cert, cert.with_suffix(".key")
 
 
-def checked_identities(identities: list[Identity], checked_at: float) -> str:
-    """IDENTITIES_CHECKED's value for `identities` checked from `checked_at` (Unix s) on."""
-    first_expiry = min((i.not_after.timestamp() for i in identities), default=checked_at)
-    return f"{checked_at:.6f}:{first_expiry:.0f}"
+def checked_identities(names: list[str], expiries: list[float], checked_at: float) -> str:
+    """IDENTITIES_CHECKED's value: the identities `names` checked from `checked_at` (Unix s)
+    on, good until the first of `expiries` (theirs and the CA's)."""
+    return f"{checked_at:.6f}:{math.floor(min(expiries, default=checked_at))}:{','.join(names)}"
 
 
 def still_checked(store: KeyStore, name: str, checked: str | None) -> bool:
-    """Whether `viena up`'s check holds for `name` now: no certificate it checked has
-    expired since, and neither the identity's certificate and key nor the CA's certificate
-    and the revocation list have changed since (their ctime, which no copy sets back: a
+    """Whether `viena up`'s check holds for `name` now: `viena up` checked that identity,
+    no certificate it checked (nor the CA's) has expired since, and neither the identity's
+    certificate and key, the CA's certificate, the revocation list nor the store's directory
+    have changed since (their ctime, which no copy sets back: a
     revocation or a new export copied onto the Pi is checked again). A program restarted
     hours later by supervisord is thus checked afresh whenever anything could differ."""
     try:
-        checked_at, first_expiry = (float(part) for part in (checked or "").split(":"))
+        at, expiry, names = (checked or "").split(":")
+        checked_at, first_expiry = float(at), float(expiry)
     except ValueError:
         return False
-    if clock.time() >= first_expiry:
+    if name not in names.split(",") or clock.time() >= first_expiry:
         return False
     cert = store.dir / f"{name}.pem"
-    files = (cert, cert.with_suffix(".key"), store.ca_cert, store.crl)
+    # the directory too: a file made, renamed or linked in it changes its ctime
+    files = [store.dir, cert, cert.with_suffix(".key"), store.ca_cert]
+    if store.crl.exists():                  # (a store from before revocation lists has none)
+        files.append(store.crl)
     try:
         return all(path.stat().st_ctime <= checked_at for path in files)
     except OSError:

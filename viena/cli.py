@@ -160,7 +160,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     pilot_cli.add_commands(cmds)
 
     p = cmds.add_parser("bench", help="print benchmark figures")
-    p.add_argument("names", nargs="*", metavar="NAME", help=f"any of {', '.join(BENCHES)} (default all)")
+    p.add_argument("names", nargs=argparse.REMAINDER, metavar="NAME ...",
+                   help=f"any of {', '.join(BENCHES)} (default all); one NAME may be followed by its own "
+                        f"flags (`viena bench pi --seconds 60`; `viena bench pi --help` lists them)")
     p.set_defaults(func=_bench)
 
     p = cmds.add_parser("calibrate", help="fit a device calibration")
@@ -177,8 +179,11 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 def _bench(args) -> int:
     """Benchmarks are development tools: they live in the source checkout (benchmarks/),
     not in what the car installs."""
+    names, flags = list(args.names), []
+    if len(names) > 1 and names[1].startswith("-"):          # one benchmark, with its own flags
+        names, flags = names[:1], names[1:]
     status = 0
-    for name in args.names or BENCHES:
+    for name in names or BENCHES:
         if name not in BENCHES:
             print(f"viena bench: unknown benchmark {name!r} (have {', '.join(BENCHES)})", file=sys.stderr)
             return 2
@@ -190,8 +195,9 @@ def _bench(args) -> int:
             print("viena bench: the benchmarks come with the source checkout (benchmarks/); "
                   "install viena from it with `pip install -e .`", file=sys.stderr)
             return 2
-        print(f"## {name}", flush=True)
-        status |= module.main([]) or 0
+        if len(names or BENCHES) > 1:                        # (one alone: its output is its own, --json too)
+            print(f"## {name}", flush=True)
+        status |= module.main(flags) or 0
     return status
 
 

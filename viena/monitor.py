@@ -205,7 +205,7 @@ class MonitorModel:
             found = self.keys.topic_of(key)
             aged = self._aged(latest, now)
             topic, chunks = found if found is not None else (None, {})
-            if topic is topics.HEALTH:
+            if topic is topics.HEALTH or topic is topics.INFO:     # health has its own rows; info says who
                 continue
             if topic is topics.GNSS_FIX:
                 gnss[topics.unit_in(chunks)] = aged

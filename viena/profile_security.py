@@ -16,8 +16,9 @@ from pathlib import Path
 
 from viena.common.errors import ConfigError
 from viena.common.keys import DEFAULT_CAR
-from viena.common.keystore import Identity, KeyStore
+from viena.common.keystore import PROGRAM_IDENTITY, Identity, KeyStore
 from viena.common.secure import IDENTITIES_CHECKED, checked_identities, is_loopback
+from viena.common.x509util import load_cert
 
 _PROGRAM = re.compile(r"^\[program:([^\]]+)\]", re.M)
 _ENV = re.compile(r"%\(ENV_([A-Z0-9_]+)\)s")
@@ -84,8 +85,12 @@ def secure_environment(conf: Path, env: dict[str, str], secure: bool, insecure: 
         store = KeyStore.for_car(out["VIENA_CAR"], keys)
         out["VIENA_KEYS"] = str(store.dir.resolve())
         checked_at = time.time()
-        checked = _check_identities(store, [p for p in programs(conf, env) if p not in WITHOUT_IDENTITY])
-        out[IDENTITIES_CHECKED] = checked_identities(checked, checked_at)   # no program checks again
+        names = [p for p in programs(conf, env) if p not in WITHOUT_IDENTITY]
+        names = [PROGRAM_IDENTITY.get(name, name) for name in names]      # the identity each presents
+        checked = _check_identities(store, names)
+        ca_expiry = load_cert(store.ca_cert).not_valid_after_utc.timestamp()
+        expiries = [i.not_after.timestamp() for i in checked] + [ca_expiry]
+        out[IDENTITIES_CHECKED] = checked_identities(names, expiries, checked_at)   # no program checks again
         return out
     listen = router_listen(conf, {**env, **out})
     if listen and not is_loopback(listen) and not insecure:

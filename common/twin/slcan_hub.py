@@ -244,12 +244,14 @@ class SlcanHub:
         if replies:
             # only acknowledgements of frames: they wait a USB frame for the bus's answers
             self._send(client, bytes(replies), hold=bool(sent) and not _without_acks(replies))
-        if sent:
+        if sent:                                         # the acks, the frames, then what answers them
             self._to_clients(sent, exclude=client)
+            for msg in sent:
+                self._deliver(msg)
 
     def _command(self, client: _Client, line: str, sent: list[can.Message]) -> bytes:
-        """Execute one slcan command; the reply bytes. A frame goes on the virtual bus at
-        once and is added to `sent`, for the other clients."""
+        """Execute one slcan command; the reply bytes. A frame is added to `sent`, for the
+        other clients and then the bus's own nodes (`_on_client_data`)."""
         cmd = line[:1]
         if cmd in ("t", "T", "r", "R"):
             if not client.talks:
@@ -260,7 +262,6 @@ class SlcanHub:
             except SlcanError as exc:
                 log.debug("client %s: %s", client.peer, exc)
                 return ERROR
-            self._deliver(msg)
             sent.append(msg)
             return b"z\r" if cmd in ("t", "r") else b"Z\r"
         if cmd == "O":

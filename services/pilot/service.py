@@ -40,6 +40,7 @@ import zenoh
 
 from viena.common import clock
 from viena.common.errors import ConfigError, InputError
+from viena.common.keystore import PROGRAM_IDENTITY
 from viena.common.log import Throttled
 from viena.common.samples import topics
 from viena.common.samples.pilot import path_sample
@@ -59,7 +60,7 @@ from viena.services.pilot.steering_link import SteeringLink
 from viena.services.steering.client import SteeringClient
 
 #: who this process is on a secured car (a certificate of role `autopilot`, docs/pilot.md)
-IDENTITY = "autopilot"
+IDENTITY = PROGRAM_IDENTITY["pilot"]
 #: how often the route held is published again on pilot/path
 PATH_PERIOD_S = 5.0
 

@@ -190,7 +190,9 @@ class SteeringController:
             self.control_step()
             next_t += period
             delay = next_t - clocks.monotonic()
-            if delay > 0:
+            if delay > 0.05:                     # a long period (a setting): stop() must not wait it out
+                self._stop.wait(delay)
+            elif delay > 0:
                 clocks.sleep(delay)              # a plain sleep: stop() waits a period at most
             elif delay < -10 * period:           # fell far behind (suspended): resync
                 next_t = clocks.monotonic()

@@ -4,7 +4,6 @@ on the Pi (`viena bench pi`). A revocation, a new export or an expiry since make
 program check afresh; a tool a person starts always checks."""
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import time
@@ -34,10 +33,10 @@ def store(tmp_path):
     return store
 
 
-def checked_by_viena_up(store) -> str:
-    env = {"VIENA_SETTINGS": str(profile_file("pi").with_suffix(".toml")), "VIENA_RTK": "false",
+def checked_by_viena_up(store, profile: str = "pi") -> str:
+    env = {"VIENA_SETTINGS": str(profile_file(profile).with_suffix(".toml")), "VIENA_RTK": "false",
            "VIENA_RECORD": "true", "VIENA_LINK": "tls"}
-    return secure_environment(profile_file("pi"), env, True, False, str(store.dir))[IDENTITIES_CHECKED]
+    return secure_environment(profile_file(profile), env, True, False, str(store.dir))[IDENTITIES_CHECKED]
 
 
 def present(store, checked: str) -> list[str]:
@@ -73,16 +72,32 @@ def test_a_new_export_copied_over_the_store_is_checked_again(store):
 
 
 def test_a_check_holds_only_until_the_first_certificate_it_checked_expires(store):
-    identities = [store.identity("gnss0")]
     now = time.time()
-    assert still_checked(store, "gnss0", checked_identities(identities, now))
-    assert not still_checked(store, "gnss0", f"{now:.6f}:{now - 1:.0f}")
+    assert still_checked(store, "gnss0", checked_identities(["gnss0"], [now + 3600], now))
+    assert not still_checked(store, "gnss0", checked_identities(["gnss0"], [now + 3600, now - 1], now))
     assert not still_checked(store, "gnss0", "1") and not still_checked(store, "gnss0", None)
 
 
-def test_a_checked_identity_whose_key_is_gone_is_refused_in_one_line(store, tmp_path):
+def test_only_the_identities_viena_up_checked_skip_the_check(store):
+    checked = checked_by_viena_up(store, "sim")
+    assert "autopilot" in checked.split(":")[2].split(",")        # what the pilot program presents
+    assert still_checked(store, "autopilot", checked) and not still_checked(store, "alice", checked)
+    now = time.time()
+    assert not still_checked(store, "gnss1", checked_identities(["gnss0"], [now + 3600], now))
+
+
+def test_a_store_without_a_revocation_list_still_skips_it_and_a_new_file_in_it_does_not(store):
+    store.crl.unlink()                                       # a store from before revocation lists
     checked = checked_by_viena_up(store)
-    os.link(store.dir / "gnss1.key", tmp_path / "kept.key")   # (a link keeps the key's ctime as it was)
+    assert still_checked(store, "gnss0", checked)
+    time.sleep(0.01)
+    (store.dir / "gnss0.pem").rename(store.dir / "gnss0.old")   # replaced by another file ...
+    (store.dir / "gnss0.old").rename(store.dir / "gnss0.pem")   # ... of the same name: the directory says so
+    assert not still_checked(store, "gnss0", checked)
+
+
+def test_a_checked_identity_whose_key_is_gone_is_refused_in_one_line(store):
+    checked = checked_by_viena_up(store)
     (store.dir / "gnss1.key").unlink()
     with pytest.raises(SecurityError, match="gnss1"):
         secure_client(zenoh.Config(), store, "gnss1", checked=checked)
