@@ -78,10 +78,19 @@ def drive_files(directory: Path) -> list[Path]:
     return sorted((p for p in directory.glob("viena-*.mcap") if drive_file(p) is not None), key=file_order)
 
 
+def broken_files(directory: Path) -> list[Path]:
+    """The unreadable originals kept beside their repair (`*.mcap.broken`), oldest first."""
+    return sorted((p for p in directory.glob(f"viena-*.mcap{BROKEN_SUFFIX}") if drive_file(p.with_suffix(""))),
+                  key=lambda p: file_order(p.with_suffix("")))
+
+
 def trim_to_budget(directory: Path, keep_bytes: int, say: Say = log.info) -> list[Path]:
-    """Delete the oldest closed drive files until those left hold at most `keep_bytes`;
+    """Delete the oldest closed drive files (and kept originals, `.broken`, as old as they
+    are: on the SD card the budget comes first) until those left hold at most `keep_bytes`;
     one line says what went. The files deleted."""
-    files = [(p, file_size(p)) for p in drive_files(directory)]
+    kept = drive_files(directory) + broken_files(directory)
+    kept.sort(key=lambda p: (file_order(_closed_name(p)), p.name.endswith(BROKEN_SUFFIX)))
+    files = [(p, file_size(p)) for p in kept]
     total = sum(size for _, size in files)
     gone: list[Path] = []
     freed = 0
@@ -106,10 +115,15 @@ def trim_to_budget(directory: Path, keep_bytes: int, say: Say = log.info) -> lis
     return gone
 
 
+def _closed_name(path: Path) -> Path:
+    return path.with_suffix("") if path.name.endswith(BROKEN_SUFFIX) else path
+
+
 def keep_bytes_of_share(directory: Path, share: float) -> int:
     """`share` of what the drives may have: the file system's free space now plus what the
     drives in DIR already hold."""
-    return int(share * (shutil.disk_usage(directory).free + sum(map(file_size, drive_files(directory)))))
+    held = drive_files(directory) + broken_files(directory)
+    return int(share * (shutil.disk_usage(directory).free + sum(map(file_size, held))))
 
 
 def budget_bytes(directory: Path, keep_gb: float | None, keep_share: float | None) -> int | None:

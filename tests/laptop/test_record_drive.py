@@ -302,3 +302,17 @@ def test_viena_record_writes_a_drive_from_the_sim_car(tmp_path, procs, router, s
         keys = {m.key for m in recording.messages()}
         assert TRUTH_KEY in keys and recording.complete
         assert messages(path)
+
+
+def test_the_budget_counts_the_kept_originals_too(tmp_path):
+    """A `.broken` original is as old as its drive: it goes in its turn, and counts meanwhile."""
+    sizes = {"viena-20240601-100000_0001.mcap.broken": 4000, "viena-20240601-100000_0001.mcap": 3000,
+             "viena-20240601-100000_0002.mcap": 3000, "viena-20240601-110000_0001.mcap.broken": 4000,
+             "viena-20240601-110000_0001.mcap": 3000, "mine.mcap.broken": 9000}
+    for name, size in sizes.items():
+        (tmp_path / name).write_bytes(b"x" * size)
+    gone = trim_to_budget(tmp_path, 7_000, lambda line: None)
+    assert [p.name for p in gone] == ["viena-20240601-100000_0001.mcap", "viena-20240601-100000_0001.mcap.broken",
+                                      "viena-20240601-100000_0002.mcap"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.mcap.broken", "viena-20240601-110000_0001.mcap",
+                                                          "viena-20240601-110000_0001.mcap.broken"]
