@@ -25,10 +25,6 @@ import time
 from pathlib import Path
 
 
-def _drive_files(directory: Path) -> list[Path]:
-    return sorted(directory.glob("viena-*_*.mcap"))
-
-
 def _last_log_time(path: Path) -> int | None:
     from viena.common.recording import Recording
 
@@ -40,9 +36,10 @@ def _last_log_time(path: Path) -> int | None:
 
 def run(seconds: float = 60.0, split_s: float = 10.0) -> int:
     from benchmarks.faults import pids, supervisor
-    from benchmarks.harness import cpu_seconds
+    from benchmarks.harness import cpu_seconds, rss_mb
     from benchmarks.security import sim_car
-    from viena.common.recording import Drive, find_drives
+    from viena.common.drive_files import drive_files
+    from viena.common.recording import Drive, file_size, find_drives
 
     with tempfile.TemporaryDirectory(prefix="viena-blackbox-") as tmp:
         drives = Path(tmp) / "drives"
@@ -52,17 +49,15 @@ def run(seconds: float = 60.0, split_s: float = 10.0) -> int:
             pid = pids(env)["recorder"]
             time.sleep(3.0)                                     # the car's programs up and publishing
             c0, t0 = cpu_seconds(pid), time.monotonic()
-            b0 = sum(p.stat().st_size for p in drives.glob("viena-*"))
+            b0 = sum(map(file_size, drives.glob("viena-*")))
             time.sleep(seconds)
             c1, t1 = cpu_seconds(pid), time.monotonic()
-            b1 = sum(p.stat().st_size for p in drives.glob("viena-*"))
-            with open(f"/proc/{pid}/status") as f:
-                rss_mb = next(int(line.split()[1]) for line in f if line.startswith("VmRSS")) / 1024
+            b1 = sum(map(file_size, drives.glob("viena-*")))
             per_hour = (b1 - b0) / (t1 - t0) * 3600 / 1e6
             print(f"blackbox: {t1 - t0:.0f} s of the sim car, files every {split_s:g} s")
             print(f"  MCAP per hour        {per_hour:7.1f} MB   (goal <= 250)")
             print(f"  recorder CPU         {100 * (c1 - c0) / (t1 - t0):7.2f} % of a core   (goal <= 5)")
-            print(f"  recorder RSS         {rss_mb:7.1f} MB")
+            print(f"  recorder RSS         {rss_mb(pid):7.1f} MB")
 
             time.sleep(random.uniform(0.5, 3.0))                # a moment nobody chose
             killed_ns = time.time_ns()
@@ -72,23 +67,25 @@ def run(seconds: float = 60.0, split_s: float = 10.0) -> int:
             while time.monotonic() < deadline and sup.getProcessInfo("recorder")["pid"] in (0, pid):
                 time.sleep(0.2)
             time.sleep(3.0)                                     # the new run repaired the old file
-            [first, *_] = find_drives(drives).values()
+            found = find_drives(drives)
+            first_id, first = next(iter(found.items()))
             last = _last_log_time(first[-1])
             lost_s = (killed_ns - last) / 1e9 if last is not None else float("nan")
             print(f"  kill -9 then restart: the killed run's last file repaired ({first[-1].name}); "
                   f"{lost_s:.2f} s before the kill missing   (goal <= 1)")
             from mcap.reader import make_reader
 
-            unreadable = []
-            for path in _drive_files(drives):
+            closed, unreadable = drive_files(drives), []
+            for path in closed:
                 with open(path, "rb") as f:
                     try:
                         sum(1 for _ in make_reader(f).iter_messages())
                     except Exception as exc:    # noqa: BLE001 - a file the mcap reader refuses is the finding
                         unreadable.append(f"{path.name}: {exc}")
-            print(f"  closed files that the mcap reader opens: {len(_drive_files(drives)) - len(unreadable)} "
-                  f"of {len(_drive_files(drives))}" + (f" (not: {'; '.join(unreadable)})" if unreadable else ""))
-            drive = Drive.in_directory(drives, next(iter(find_drives(drives))))
+            refused = f" (not: {'; '.join(unreadable)})" if unreadable else ""
+            opened = len(closed) - len(unreadable)
+            print(f"  closed files that the mcap reader opens: {opened} of {len(closed)}{refused}")
+            drive = Drive(first_id, first)
             paths = sum(1 for m in drive.messages() if m.key.endswith("/pilot/path"))
             print(f"  the killed drive read as one: {len(drive.files)} files, {drive.count} samples, "
                   f"{drive.repeats} latched repeats read once, {paths} route samples")

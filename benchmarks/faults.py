@@ -41,6 +41,7 @@ from benchmarks.harness import (
     cpu_seconds,
     percentile,
     processes,
+    rss_mb,
     start_drive_twin,
     start_router,
     start_steering,
@@ -262,14 +263,6 @@ def bad_inputs(imu_sample: dict) -> list[tuple[str, str, str, bytes, int]]:
         ("future IMU sample", "imu/razor0/sample", "put", msgpack.packb(future_imu), 5),
         ("garbage GNSS fix", "gnss/gnss0/fix", "put", msgpack.packb({"t": "soon"}), 200),
     ]
-
-
-def rss_mb(pid: int) -> float:
-    with open(f"/proc/{pid}/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 def rss_around_bad_input(env: dict, session, heard: Heard) -> tuple[dict, dict, int, list]:

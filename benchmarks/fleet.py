@@ -21,8 +21,8 @@ from pathlib import Path
 
 import msgpack
 
-from benchmarks.faults import pids, rss_mb
-from benchmarks.harness import cpu_seconds, processes
+from benchmarks.faults import pids
+from benchmarks.harness import cpu_seconds, processes, rss_mb
 from benchmarks.security import open_as, sim_car
 
 CAR = "viena/elettra/"

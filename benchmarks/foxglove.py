@@ -29,7 +29,7 @@ from pathlib import Path
 
 import msgpack
 
-from benchmarks.harness import cpu_share, free_port, percentile, processes, start_router
+from benchmarks.harness import cpu_share, free_port, percentile, processes, rss_mb, start_router
 from viena.common.config import load_zenoh_config
 from viena.common.paths import compose_dir
 from viena.common.recording import ReceiveClock, Recording, RecordingWriter
@@ -107,11 +107,6 @@ session = zenoh.open(load_zenoh_config(mode="client", connect=[sys.argv[1]]))
 subscriber = session.declare_subscriber(sys.argv[2], lambda sample: None)
 threading.Event().wait()
 """
-
-
-def rss_mb(pid: int) -> float:
-    with open(f"/proc/{pid}/status") as f:
-        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS")) / 1024
 
 
 def start_car(start, router: str) -> None:

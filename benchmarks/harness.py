@@ -27,6 +27,24 @@ def cpu_share(pid: int, seconds: float) -> float:
     return (cpu_seconds(pid) - c0) / (time.monotonic() - t0)
 
 
+def memory_mb(pid: int) -> tuple[float, float] | None:
+    """(resident now, its peak) of a process in MB; None once it is gone."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            fields = dict(line.split(":", 1) for line in f if ":" in line)
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+    return int(fields["VmRSS"].split()[0]) / 1024, int(fields["VmHWM"].split()[0]) / 1024
+
+
+def rss_mb(pid: int) -> float:
+    """Resident memory of a (running) process now, MB."""
+    found = memory_mb(pid)
+    if found is None:
+        raise ProcessLookupError(pid)
+    return found[0]
+
+
 def percentile(values, q: float) -> float:
     ordered = sorted(values)
     if not ordered:

@@ -40,7 +40,8 @@ import time
 from pathlib import Path
 
 from benchmarks.cpu_quota import CpuQuota
-from benchmarks.harness import cpu_seconds, free_port, percentile, processes, wait_for_port
+from benchmarks.harness import cpu_seconds, free_port, memory_mb, percentile, processes, start_router, wait_for_port
+from benchmarks.security import open_as
 
 CAR = "elettra"
 VIENA = [sys.executable, "-m", "viena.cli"]
@@ -57,15 +58,11 @@ def start_twins(start, ports: dict[str, int]) -> None:
     """viena-sim with its device twins on `ports`, publishing its truth to a router of its own."""
     from viena.common.paths import compose_dir
 
-    router_port = free_port()
-    start("-m", "viena.router", "--listen", f"tcp/127.0.0.1:{router_port}", "--log-level", "WARNING")
-    wait_for_port(router_port)
-    env = dict(os.environ, VIENA_LINK="tcp", VIENA_ROUTER_PORT=str(router_port),
-               **{name: str(port) for name, port in ports.items()})
-    start("-m", "viena.services.sim.service", "--config", compose_dir() / "sim.toml", "--log-level", "WARNING",
-          env=env)
-    for port in ports.values():
-        if port != ports["VIENA_GNSS0_COM2_PORT"] and port != ports["VIENA_GNSS1_COM2_PORT"]:
+    router = start_router(start)
+    start("-m", "viena.services.sim.service", "--connect", router, "--config", compose_dir() / "sim.toml",
+          "--log-level", "WARNING", env=dict(os.environ, **{name: str(port) for name, port in ports.items()}))
+    for name, port in ports.items():
+        if "COM2" not in name:                     # (a receiver's COM2 listens only with --rtk)
             wait_for_port(port, 30.0)
 
 
@@ -99,18 +96,6 @@ def pi_up(env: dict[str, str], quota: CpuQuota) -> str:
 
 def pi_down(env: dict[str, str]) -> None:
     subprocess.run([*VIENA, "down", "--profile", "pi"], env=env, capture_output=True, timeout=60)
-
-
-def open_as(env: dict[str, str], endpoint: str, identity: str):
-    import zenoh
-
-    from viena.common.config import load_zenoh_config
-    from viena.common.keystore import KeyStore
-    from viena.common.secure import secure_client
-
-    conf = load_zenoh_config(mode="client", connect=[endpoint])
-    secure_client(conf, KeyStore(env["VIENA_KEYS"], CAR), identity)
-    return zenoh.open(conf)
 
 
 # -- what this process measures -----------------------------------------------------------
@@ -254,16 +239,6 @@ class Setpoints:
 
 
 # -- the programs' CPU and memory ---------------------------------------------------------
-def rss_mb(pid: int) -> tuple[float, float] | None:
-    """(resident now, its peak) in MB; None once it is gone."""
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            fields = dict(line.split(":", 1) for line in f if ":" in line)
-    except (FileNotFoundError, ProcessLookupError):
-        return None
-    return int(fields["VmRSS"].split()[0]) / 1024, int(fields["VmHWM"].split()[0]) / 1024
-
-
 def process_cpu(pid: int) -> float | None:
     """CPU seconds of a process (its threads included); None once it is gone."""
     try:
@@ -338,7 +313,7 @@ def measure(session, env, quota: CpuQuota, fox_pid: int, fox_port: int, seconds:
         t1 = time.monotonic()
         c1 = {name: process_cpu(pid) for name, pid in programs.items()}
         b1, throttled1 = directory_bytes(drives), quota.throttling()
-        memory = {name: rss for name, pid in programs.items() if (rss := rss_mb(pid)) is not None}
+        memory = {name: rss for name, pid in programs.items() if (rss := memory_mb(pid)) is not None}
     finally:
         setpoints.stop()
         client.close()

@@ -78,19 +78,19 @@ def drive_files(directory: Path) -> list[Path]:
     return sorted((p for p in directory.glob("viena-*.mcap") if drive_file(p) is not None), key=file_order)
 
 
-def broken_files(directory: Path) -> list[Path]:
-    """The unreadable originals kept beside their repair (`*.mcap.broken`), oldest first."""
-    return sorted((p for p in directory.glob(f"viena-*.mcap{BROKEN_SUFFIX}") if drive_file(p.with_suffix(""))),
-                  key=lambda p: file_order(p.with_suffix("")))
+def _kept_files(directory: Path) -> list[Path]:
+    """The closed drive files and the unreadable originals kept beside their repair
+    (`*.mcap.broken`), oldest first, each repair before its original: one listing."""
+    found = [p for p in directory.glob("viena-*.mcap*")
+             if p.name.endswith((".mcap", BROKEN_SUFFIX)) and drive_file(_closed_name(p)) is not None]
+    return sorted(found, key=lambda p: (file_order(_closed_name(p)), p.name.endswith(BROKEN_SUFFIX)))
 
 
 def trim_to_budget(directory: Path, keep_bytes: int, say: Say = log.info) -> list[Path]:
     """Delete the oldest closed drive files (and kept originals, `.broken`, as old as they
     are: on the SD card the budget comes first) until those left hold at most `keep_bytes`;
     one line says what went. The files deleted."""
-    kept = drive_files(directory) + broken_files(directory)
-    kept.sort(key=lambda p: (file_order(_closed_name(p)), p.name.endswith(BROKEN_SUFFIX)))
-    files = [(p, file_size(p)) for p in kept]
+    files = [(p, file_size(p)) for p in _kept_files(directory)]
     total = sum(size for _, size in files)
     gone: list[Path] = []
     freed = 0
@@ -122,8 +122,7 @@ def _closed_name(path: Path) -> Path:
 def keep_bytes_of_share(directory: Path, share: float) -> int:
     """`share` of what the drives may have: the file system's free space now plus what the
     drives in DIR already hold."""
-    held = drive_files(directory) + broken_files(directory)
-    return int(share * (shutil.disk_usage(directory).free + sum(map(file_size, held))))
+    return int(share * (shutil.disk_usage(directory).free + sum(map(file_size, _kept_files(directory)))))
 
 
 def budget_bytes(directory: Path, keep_gb: float | None, keep_share: float | None) -> int | None:
@@ -200,7 +199,7 @@ class DriveWriter:
         self.samples = 0
         self._closed_bytes = 0
         self._latched: dict[str, bool] = {}                          # key -> is its topic latched
-        self._held: dict[tuple[str, str], tuple[int, int, bytes]] = {}  # last latched samples
+        self._held: dict[tuple[str, str], tuple[int, bytes]] = {}       # last latched: publish time, data
         self._first_log_time: int | None = None                       # of the open file's new samples
         self._writer = self._open()
         self.part = self._writer.part                                 # the file being written
@@ -232,10 +231,13 @@ class DriveWriter:
         elif self._full(log_time):
             self._next_file(log_time)
             self._first_log_time = log_time
-        self._writer.write(key, encoding, log_time, data)
+        if latched:                               # kept with its publish time, for the next files
+            publish_time = sample_time(data) or log_time
+            self._held[(key, encoding)] = (publish_time, data)
+            self._writer.write(key, encoding, log_time, data, publish_time)
+        else:
+            self._writer.write(key, encoding, log_time, data)
         self.samples += 1
-        if latched:
-            self._held[(key, encoding)] = (log_time, sample_time(data) or log_time, data)
 
     def _full(self, log_time: int) -> bool:
         assert self._first_log_time is not None
@@ -250,7 +252,7 @@ class DriveWriter:
             self._writer = self._open(repeats=len(self._held))
             self.part = self._writer.part
             self._is_open = True
-        for (key, encoding), (_, publish_time, data) in self._held.items():
+        for (key, encoding), (publish_time, data) in self._held.items():
             self._writer.write(key, encoding, log_time, data, publish_time)
 
     def _close_file(self) -> Path:

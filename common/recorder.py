@@ -212,7 +212,6 @@ class Recorder:
 
     def _taken(self) -> list:
         """What arrived so far, oldest first (zenoh's threads go on adding meanwhile)."""
-        arrived = self._arrived
         if self._rings is not None:
             rung, counts = self._rings.take(self._subscribers)
             self._largest_batch = max(self._largest_batch, len(rung))
@@ -224,7 +223,8 @@ class Recorder:
             if self.on_sample is not None:
                 for _ in rung:
                     self.on_sample()
-            arrived.extend(rung)
+            return rung
+        arrived = self._arrived
         return [arrived.popleft() for _ in range(len(arrived))]
 
     def _write(self, batch: list) -> None:

@@ -93,9 +93,9 @@ def still_checked(store: KeyStore, name: str, checked: str | None) -> bool:
         return False
     if name not in names.split(",") or clock.time() >= first_expiry:
         return False
-    cert = store.dir / f"{name}.pem"
+    cert, key = identity_files(store, name)
     # the directory too: a file made, renamed or linked in it changes its ctime
-    files = [store.dir, cert, cert.with_suffix(".key"), store.ca_cert]
+    files = [store.dir, cert, key, store.ca_cert]
     if store.crl.exists():                  # (a store from before revocation lists has none)
         files.append(store.crl)
     try:

@@ -20,11 +20,9 @@ from __future__ import annotations
 import argparse
 import itertools
 import logging
-import os
 import signal
 import socket
 import sys
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -46,9 +44,9 @@ from viena.common.session import (
     zenoh_options,
 )
 from viena.common.settings import add_flags, given_flags, load, specs
-from viena.common.signals import call_on_signals
+from viena.common.signals import call_on_signals, exit_if_stuck
+from viena.common.versions import versions
 
-STOP_DEADLINE_S = 2.0
 HEALTH_PERIOD_S = 1.0
 #: how often a process says who it is again (its info; at start too): for a black box
 #: that started after it, which repeats the last one at the start of every file
@@ -187,13 +185,13 @@ class Service:
         try:
             self._token = self.session.liveliness().declare_token(self.keys.alive(self.name, self.unit))
             health_pub = self.publisher(topics.HEALTH, service=self.name, unit=self.unit)
-            info = self._info_sampler()
+            put_info = self._info_sampler()
             self.start()
             next_info = clock.monotonic()
             while not self.stopping.wait(HEALTH_PERIOD_S):
                 health_pub.put(self.health.snapshot())
                 if clock.monotonic() >= next_info:
-                    info()
+                    put_info()
                     next_info = clock.monotonic() + INFO_PERIOD_S
         finally:
             self._shutdown()
@@ -203,7 +201,7 @@ class Service:
         """Puts this process's info (common/samples/info.py), now and each time it is called."""
         pub = self.publisher(topics.INFO, service=self.name, unit=self.unit)
         fixed = {"service": self.name, "unit": self.unit, "started": clock.time_ns(), "host": socket.gethostname(),
-                 "versions": info.versions(), "settings": info.settings_map(self.settings)}
+                 "versions": versions(), "settings": info.settings_map(self.settings)}
         seq = itertools.count()
 
         def put() -> None:
@@ -229,16 +227,7 @@ class Service:
             return
         self.log.info("%s: stopping", signal.Signals(signum).name)
         self.stopping.set()
-        # The deadline is a promise to supervisor and to the person at Ctrl-C: keep it even
-        # if a device or the zenoh runtime hangs while closing.
-        timer = threading.Timer(STOP_DEADLINE_S - 0.2, self._force_exit)
-        timer.daemon = True
-        timer.start()
-
-    def _force_exit(self) -> None:
-        self.log.warning("stop took longer than %.1f s: exiting anyway", STOP_DEADLINE_S)
-        logging.shutdown()
-        os._exit(0)
+        exit_if_stuck(self.log)
 
     def _shutdown(self) -> None:
         self.stopping.set()

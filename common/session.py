@@ -34,6 +34,7 @@ from viena.common.errors import InputError
 from viena.common.keys import DEFAULT_CAR
 from viena.common.keystore import KeyStore
 from viena.common.secure import IDENTITIES_CHECKED, is_secure, secure_client
+from viena.common.versions import version_text
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 #: the identity of a person's tool (viena sub, monitor, record...) when none is given
@@ -56,19 +57,6 @@ class VersionAction(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None):
         print(f"{parser.prog} {version_text()}")
         parser.exit()
-
-
-def version_text() -> str:
-    import platform
-    from importlib.metadata import PackageNotFoundError, version
-
-    def of(dist: str) -> str:
-        try:
-            return version(dist)
-        except PackageNotFoundError:
-            return "not installed"
-    return (f"{of('viena')} (eclipse-zenoh {of('eclipse-zenoh')}, Python {platform.python_version()}, "
-            f"{platform.system()} {platform.machine()})")
 
 
 def add_version_flag(parser: argparse.ArgumentParser) -> None:

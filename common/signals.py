@@ -11,11 +11,15 @@ as soon as the main thread lets go.
 from __future__ import annotations
 
 import _thread
+import logging
+import os
 import signal
 import threading
 from collections.abc import Callable, Iterable
 
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
+#: how long any viena program may take to stop once told (supervisor waits 3 s, then kills)
+STOP_DEADLINE_S = 2.0
 
 
 def call_on_signals(action: Callable[[int], None], signals: Iterable[int] = STOP_SIGNALS) -> None:
@@ -32,3 +36,16 @@ def stop_on_signals(signals: Iterable[int] = STOP_SIGNALS) -> threading.Event:
     stop = threading.Event()
     call_on_signals(lambda _signum: stop.set(), signals)
     return stop
+
+
+def exit_if_stuck(log: logging.Logger, deadline_s: float = STOP_DEADLINE_S - 0.2) -> None:
+    """From now on, exit anyway after `deadline_s`: the stop deadline is a promise to
+    supervisor and to the person at Ctrl-C, kept even if a device or zenoh hangs while
+    closing (a router flooded with denials just before did, in CI)."""
+    def force() -> None:
+        log.warning("stop took longer than %.1f s: exiting anyway", deadline_s)
+        logging.shutdown()
+        os._exit(0)
+    timer = threading.Timer(deadline_s, force)
+    timer.daemon = True
+    timer.start()

@@ -29,7 +29,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from viena.common.session import version_text
+from viena.common.versions import version_text
 from viena.tool import Fail, guarded
 
 SYSTEM_DIR = Path("/etc/systemd/system")

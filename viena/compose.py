@@ -135,7 +135,7 @@ def _secure_environment(conf: Path, env: dict[str, str], secure: bool, insecure:
     try:
         return secure_environment(conf, env, secure, insecure, keys)
     except SecurityRefusal as exc:
-        if record or env.get("VIENA_RECORD") != "true" or "recorder" not in str(exc):
+        if record or env.get("VIENA_RECORD") != "true" or exc.failed != ("recorder",):
             raise
     print("viena up: the key store has no `recorder` identity (made before the black box): starting "
           "without it. On the machine that keeps the CA: `viena keys issue recorder recorder`, then export "

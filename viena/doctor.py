@@ -48,7 +48,8 @@ from viena.common.errors import ConfigError, InputError
 from viena.common.keys import Keys
 from viena.common.runstate import run_dir
 from viena.common.samples import topics
-from viena.common.session import Unreachable, open_session, version_text, zenoh_config
+from viena.common.session import Unreachable, open_session, zenoh_config
+from viena.common.versions import version_text
 
 if TYPE_CHECKING:
     import zenoh

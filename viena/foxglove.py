@@ -107,7 +107,7 @@ class Bridge:
         self._thread.start()
 
     def _convert_loop(self, handler) -> None:
-        publish, clock, thin = self.channels.publish, self.clock, self.downsampler
+        publish, wanted, clock, thin = self.channels.publish, self.channels.wanted, self.clock, self.downsampler
         heard = False
         while True:
             try:
@@ -119,21 +119,21 @@ class Bridge:
             if not heard:
                 self.silence.heard()
                 heard = True
-            key = str(sample.key_expr)
-            if thin.period_s and not thin.keep(key, time.monotonic()):
-                continue
+            key, encoding = str(sample.key_expr), str(sample.encoding)
+            if not wanted(key, encoding) or (thin.period_s and not thin.keep(key, time.monotonic())):
+                continue                # nobody watches it: not even copied
             try:
-                publish(key, str(sample.encoding), sample.payload.to_bytes(), clock())
+                publish(key, encoding, sample.payload.to_bytes(), clock())
             except Exception:           # a bug in one conversion must not end the bridge
                 log.exception("cannot convert a sample on %s", key)
 
     def stop(self) -> None:
-        if self._subscriber is not None:
+        subscriber, self._subscriber = self._subscriber, None     # first: the thread's end is then no news
+        if subscriber is not None:
             try:
-                self._subscriber.undeclare()
+                subscriber.undeclare()
             except Exception as exc:
                 log.debug("undeclare failed: %s", exc)
-            self._subscriber = None
         if self._thread is not None:
             self._thread.join(timeout=2.0)
 

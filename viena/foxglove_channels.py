@@ -45,6 +45,11 @@ class _KeyChannels:
         # bytes go straight to its Rust channel
         self.json_log = self.json.base.log
 
+    def wanted(self) -> bool:
+        """Whether a sample of this key is worth converting: someone watches one of its
+        channels, or later samples of other keys need it (keeps_state)."""
+        return self.keeps_state or self.json.has_sinks() or self.derived_watched()
+
     def derived_watched(self) -> bool:
         return any(ch.has_sinks() for ch in self.derived.values())
 
@@ -56,6 +61,12 @@ class _KeyChannels:
 
 class FoxgloveChannels:
     """Channels in one foxglove.Context, by key and encoding."""
+
+    def wanted(self, key: str, encoding: str) -> bool:
+        """Whether a sample of this key is worth handing over (its channels not advertised
+        yet, or `wanted`): the converting thread skips the rest before copying anything."""
+        channels = self._keys.get((key, encoding))
+        return channels is None or channels.wanted()
 
     def __init__(self, context: foxglove.Context):
         self.context = context

@@ -27,7 +27,12 @@ _CAR = re.compile(r'^car\s*=\s*"([^"]+)"', re.M)
 
 
 class SecurityRefusal(Exception):
-    """Why a profile may not start as asked: one line a person can act on."""
+    """Why a profile may not start as asked: one line a person can act on; `failed`, the
+    identities whose check failed (if that was why)."""
+
+    def __init__(self, message: str, failed: tuple[str, ...] = ()):
+        super().__init__(message)
+        self.failed = failed
 
 
 def profile_text(conf: Path) -> str:
@@ -104,14 +109,15 @@ def secure_environment(conf: Path, env: dict[str, str], secure: bool, insecure: 
 
 
 def _check_identities(store: KeyStore, names: list[str]) -> list[Identity]:
-    problems, checked = [], []
+    problems: dict[str, str] = {}
+    checked = []
     for name in names:
         try:
             checked.append(store.identity(name))
         except ConfigError as exc:
             if not store.exists():
                 raise SecurityRefusal(f"{exc} (or `viena up --insecure` without TLS)") from None
-            problems.append(str(exc))
+            problems[name] = str(exc)
     if problems:
-        raise SecurityRefusal("; ".join(problems))
+        raise SecurityRefusal("; ".join(problems.values()), failed=tuple(problems))
     return checked

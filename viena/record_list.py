@@ -38,12 +38,6 @@ EARTH_RADIUS_M = 6_371_008.8
 SOURCES = ("estimator", "gnss", "truth")
 
 
-def default_directory() -> Path:
-    """Where the black box writes unless its settings say otherwise ($VIENA_DRIVES, else
-    ~/.local/share/viena/drives: common/paths.py)."""
-    return drives_dir()
-
-
 class Odometer:
     """Length of a path in a plane, in metres, counting only moves of MIN_STEP_M or more."""
 
@@ -140,10 +134,12 @@ class DriveRow:
 def drive_row(drive: Drive) -> DriveRow:
     """Read a whole drive once: its span, size and the distance driven."""
     distance = Distance()
-    readers = distance.readers()
+    readers, reader_of = distance.readers(), {}
     for m in drive.messages():
-        found = topic_of_key(m.key)
-        reader = None if found is None else readers.get(found[0].name)
+        if m.key not in reader_of:               # the key's topic, looked up once a key
+            found = topic_of_key(m.key)
+            reader_of[m.key] = None if found is None else readers.get(found[0].name)
+        reader = reader_of[m.key]
         if reader is None or not distance.wants(m.key, m.log_time):
             continue
         try:
@@ -199,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    directory = args.directory or default_directory()
+    directory = args.directory or drives_dir()          # $VIENA_DRIVES, else ~/.local/share/viena/drives
     try:
         rows = [drive_row(Drive(drive_id, files)) for drive_id, files in find_drives(directory).items()]
     except InputError as exc:

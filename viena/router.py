@@ -35,7 +35,7 @@ from viena.common.log import setup_logging
 from viena.common.paths import router_config
 from viena.common.secure import is_loopback, is_secure, secure_router
 from viena.common.session import add_version_flag, check_endpoint, config_endpoints
-from viena.common.signals import stop_on_signals
+from viena.common.signals import exit_if_stuck, stop_on_signals
 from viena.router_guard import DEFER_ACCEPT_S, HANDSHAKE_TIMEOUT_MS, defer_silent_connections, with_handshake_timeout
 from viena.router_log import ZenohLog
 
@@ -159,27 +159,11 @@ def run(args: argparse.Namespace) -> int:
     log.info("router %s listening on %s (config %s); %s", session.zid(), ", ".join(listening or []),
              path, security)
     _wait(stop, security)
-    _exit_if_stuck(STOP_DEADLINE_S)
+    exit_if_stuck(log)                           # zenoh can hang closing a busy router
     session.close()
     log.info("router stopped")
     return 0
 
-
-def _exit_if_stuck(deadline_s: float) -> None:
-    """Exit anyway if closing takes longer than `deadline_s`: zenoh can hang closing a busy
-    session (a CI run saw a router, flooded with denials just before, not stop in 20 s), and
-    supervisor and a person at Ctrl-C are promised a stop within 2 s, as every program."""
-    def force() -> None:
-        log.warning("stop took longer than %.1f s: exiting anyway", deadline_s)
-        logging.shutdown()
-        os._exit(0)
-    timer = threading.Timer(deadline_s, force)
-    timer.daemon = True
-    timer.start()
-
-
-#: how long closing may take once stopped (common/service.py's STOP_DEADLINE_S: supervisor waits 3 s)
-STOP_DEADLINE_S = 2.0
 
 
 def _wait(stop: threading.Event, security: str) -> None:

@@ -6,9 +6,6 @@ never hold a secret (a login is a file's name: services/ntrip)."""
 from __future__ import annotations
 
 import dataclasses
-import os
-import platform
-import sys
 from pathlib import PurePath
 from typing import Any
 
@@ -25,27 +22,6 @@ INFO = Schema("viena.info/1", {
     "versions": F.map,            # viena, eclipse-zenoh, python, platform
     "settings": F.map,            # name -> value, as the process runs them
 })
-
-
-def versions() -> dict[str, str]:
-    """The versions a recording should name: viena's, zenoh's, Python's, the machine's."""
-    return {"viena": installed_version("viena"), "eclipse-zenoh": installed_version("eclipse_zenoh"),
-            "python": platform.python_version(), "platform": f"{platform.system()} {platform.machine()}"}
-
-
-def installed_version(dist: str) -> str:
-    """A distribution's version from its `NAME-VERSION.dist-info` folder on sys.path: what
-    importlib.metadata reads too, without the ~45 modules (1.7 MB a process) it imports."""
-    for entry in sys.path:
-        try:
-            names = os.listdir(entry or ".")
-        except OSError:
-            continue
-        for name in names:
-            stem, dot, ext = name.rpartition(".")
-            if ext == "dist-info" and stem.partition("-")[0].lower() == dist.lower():
-                return stem.partition("-")[2]
-    return "not installed"
 
 
 def settings_map(settings: Any) -> dict[str, Any]:

@@ -48,7 +48,6 @@ MAX_LINE = 64                 # longest valid slcan line is 27 characters (T + 8
 #: a USB adapter answers in the host's next USB transfer: the acknowledgements of a client's
 #: frames wait this long for what the bus answers them with, to go in one write together
 USB_FRAME_S = 0.001
-ACKS = (b"z\r", b"Z\r")
 
 
 class SlcanError(ValueError):
@@ -243,7 +242,7 @@ class SlcanHub:
             replies += self._command(client, line, sent)
         if replies:
             # only acknowledgements of frames: they wait a USB frame for the bus's answers
-            self._send(client, bytes(replies), hold=bool(sent) and not _without_acks(replies))
+            self._send(client, bytes(replies), hold=len(replies) == 2 * len(sent) > 0)   # acks alone: z\r each
         if sent:                                         # the acks, the frames, then what answers them
             self._to_clients(sent, exclude=client)
             for msg in sent:
@@ -388,11 +387,6 @@ class SlcanHub:
         except OSError:
             pass
         log.info("slcan client %s:%s %s", *client.peer[:2], why)
-
-
-def _without_acks(replies: bytearray) -> bytes:
-    """The replies other than acknowledgements of frames."""
-    return bytes(replies).replace(ACKS[0], b"").replace(ACKS[1], b"")
 
 
 def _line_end(buffer: bytearray) -> int:

@@ -101,3 +101,21 @@ def test_a_checked_identity_whose_key_is_gone_is_refused_in_one_line(store):
     (store.dir / "gnss1.key").unlink()
     with pytest.raises(SecurityError, match="gnss1"):
         secure_client(zenoh.Config(), store, "gnss1", checked=checked)
+
+
+def test_a_store_made_before_the_black_box_starts_the_car_without_it_and_nothing_else_is_let_off(store, capsys):
+    from viena.compose import _secure_environment
+    from viena.profile_security import SecurityRefusal
+
+    env = {"VIENA_SETTINGS": str(profile_file("pi").with_suffix(".toml")), "VIENA_RTK": "false",
+           "VIENA_RECORD": "true", "VIENA_LINK": "tls"}
+    for suffix in (".pem", ".key"):
+        (store.dir / f"recorder{suffix}").unlink()
+    out = _secure_environment(profile_file("pi"), env, True, False, str(store.dir), False)
+    assert env["VIENA_RECORD"] == "false" and "recorder" not in out[IDENTITIES_CHECKED].split(":")[2].split(",")
+    assert "no `recorder` identity" in capsys.readouterr().err
+    env["VIENA_RECORD"] = "true"
+    (store.dir / "gnss0.key").unlink()                       # a second one missing: refused, as before
+    with pytest.raises(SecurityRefusal) as refused:
+        _secure_environment(profile_file("pi"), env, True, False, str(store.dir), False)
+    assert set(refused.value.failed) == {"recorder", "gnss0"}

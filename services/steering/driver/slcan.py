@@ -21,11 +21,8 @@ import can
 import serial
 from can.interfaces.slcan import error_check, slcanBus
 
-from viena.common import clock
-
 #: what an adapter answers to a frame it sent (CR; CANable and LAWICEL: z, Z)
 _ACKS = frozenset({"\r", "z\r", "Z\r"})
-_DLCS = frozenset("012345678")
 
 
 class SlcanBus(slcanBus):
@@ -66,26 +63,19 @@ class SlcanBus(slcanBus):
                 return None, False
             if line in _ACKS:
                 continue
-            if line[0] == "t" and len(line) >= 6 and line[4] in _DLCS:
-                dlc = int(line[4])
-                return can.Message(arbitration_id=int(line[1:4], 16), is_extended_id=False, timestamp=clock.time(),
-                                   dlc=dlc, data=bytearray.fromhex(line[5:5 + 2 * dlc])), False
-            self._queue.put_nowait(line)
+            self._queue.put_nowait(line)                    # python-can parses it
             return super()._recv_internal(0)
 
     def send_frames(self, frames: Iterable[tuple[int, bytes]]) -> None:
         """Send these standard data frames (id, data), in order, with one write."""
-        data = b"".join([_line(can_id, payload) for can_id, payload in frames])
-        with error_check("Could not write to serial device"):
-            self.serialPortOrig.write(data)
-            self.serialPortOrig.flush()
+        self._write("\r".join([_line(can_id, payload) for can_id, payload in frames]))   # it ends the last
 
 
 @functools.lru_cache(maxsize=256)
-def _line(can_id: int, payload: bytes) -> bytes:
-    """A standard data frame's slcan line: the period's frames repeat (SYNC, heartbeat, an
-    RPDO holding its target), so each is formatted once."""
-    return f"t{can_id:03X}{len(payload)}{payload.hex().upper()}\r".encode()
+def _line(can_id: int, payload: bytes) -> str:
+    """A standard data frame's slcan line, without its CR: the period's frames repeat (SYNC,
+    heartbeat, an RPDO holding its target), so each is formatted once."""
+    return f"t{can_id:03X}{len(payload)}{payload.hex().upper()}"
 
 
 def _line_end(held: bytearray) -> int:
