@@ -227,9 +227,10 @@ class Setpoints:
                     self._lease = self.arm()
                 except RuntimeError as exc:                 # said in the report; asked again next period
                     self.errors.append(str(exc))
-            # a late setpoint is not followed by a burst to catch up, as the pilot's is not: the
-            # router lets setpoints through at most 200 Hz per client (compose/zenoh/router.json5)
-            next_at = max(next_at + period, time.monotonic())
+            # the next query at least half a period after this answer, as the pilot's: the
+            # router lets setpoints through at most 200 Hz per client (compose/zenoh/router.json5),
+            # and it saw this answer after this query, so it sees the next at least 10 ms later
+            next_at = max(next_at + period, time.monotonic() + period / 2)
             self._stop.wait(next_at - time.monotonic())
 
     def stop(self) -> None:

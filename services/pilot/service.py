@@ -177,10 +177,11 @@ class PilotService(Service):
                 if now >= self._path_due and self.pilot.route is not None:
                     self._path_due = now + PATH_PERIOD_S
                     self._path_pub.put(path_sample(self.pilot.route, clock.time_ns()))
-                next_tick += period_s
+                # the next tick at least half a period after this one ends, however late
+                # this one was: a late setpoint is not followed by a burst to catch up, which
+                # the router would cut (it lets setpoints through at most 200 Hz a client)
+                next_tick = max(next_tick + period_s, clock.monotonic() + period_s / 2)
                 self.stopping.wait(max(0.0, next_tick - clock.monotonic()))
-                if clock.monotonic() - next_tick > period_s:     # fell behind: do not burst
-                    next_tick = clock.monotonic()
         finally:
             self.pilot.stop("pilot shut down")
             self.client.timeout_s = min(self.settings.arm_timeout_s, 0.5)   # within the 2 s stop

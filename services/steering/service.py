@@ -27,7 +27,6 @@ import logging
 import math
 from dataclasses import dataclass
 
-import pymap3d
 import zenoh
 
 from viena.common.errors import InputError, PayloadError
@@ -199,8 +198,18 @@ def speed_of_fix(fix: dict) -> tuple[str, int, float, float, bool]:
     t, unit, valid, vel, sigma, lat, lon = _FIX(fix)
     if vel is None or sigma is None:
         return unit, t, math.nan, math.nan, False
-    east, north, _ = pymap3d.uvw2enu(*vel, lat, lon)
-    return unit, t, math.hypot(east, north), max(sigma), valid
+    return unit, t, horizontal_speed(vel, lat, lon), max(sigma), valid
+
+
+def horizontal_speed(vel_ecef: tuple[float, float, float], lat_deg: float, lon_deg: float) -> float:
+    """The speed along the ground: the ECEF velocity without its part along the local
+    vertical (the ellipsoid's normal at lat, lon; pymap3d's "up", checked against it in the
+    tests). Written out because pymap3d brings numpy, 13 MB of the steering's 60 on the Pi,
+    for this one dot product."""
+    lat, lon = math.radians(lat_deg), math.radians(lon_deg)
+    up = (math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat))
+    vertical = sum(v * u for v, u in zip(vel_ecef, up))
+    return math.sqrt(max(sum(v * v for v in vel_ecef) - vertical * vertical, 0.0))
 
 
 def main(argv=None) -> int:

@@ -131,3 +131,29 @@ def test_the_agreement_allows_what_the_car_can_accelerate_between_the_stamps():
     assert sources.speed(NOW).source == "estimator+gnss0"
     gnss(sources, "gnss0", 6.2, 0.1)                                  # the same, stamped with it: 1.07
     assert sources.speed(NOW).source == CONSERVATIVE
+
+
+def test_a_fixs_speed_along_the_ground_is_pymap3ds_east_and_north():
+    import random
+
+    import pymap3d
+
+    from viena.services.steering.service import horizontal_speed
+
+    rng = random.Random(7)
+    for _ in range(200):
+        lat, lon = rng.uniform(-89.0, 89.0), rng.uniform(-180.0, 180.0)
+        vel = tuple(rng.uniform(-40.0, 40.0) for _ in range(3))
+        east, north, _ = pymap3d.uvw2enu(*vel, lat, lon)
+        assert horizontal_speed(vel, lat, lon) == pytest.approx(math.hypot(east, north), abs=1e-9)
+
+
+def test_the_steering_service_loads_no_numpy():
+    """numpy is 13 MB of resident memory in a process that needs none of it (the Pi's budget:
+    60 MB a program, docs/deployment.md)."""
+    import subprocess
+    import sys
+
+    probe = "import sys, viena.services.steering.service; print('numpy' in sys.modules)"
+    run = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert (run.returncode, run.stdout.strip()) == (0, "False"), run.stderr
