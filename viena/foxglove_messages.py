@@ -40,7 +40,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import orjson
-
 from foxglove.messages import (
     Color,
     FrameTransform,
