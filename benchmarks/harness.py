@@ -37,6 +37,19 @@ def memory_mb(pid: int) -> tuple[float, float] | None:
     return int(fields["VmRSS"].split()[0]) / 1024, int(fields["VmHWM"].split()[0]) / 1024
 
 
+def pss_mb(pid: int) -> float | None:
+    """Proportional memory of a process in MB: its own pages, and each page it shares (the
+    Python interpreter, zenoh's library, numpy's) divided among the processes mapping it.
+    What it adds to a machine's memory, where RSS counts a shared page in every process;
+    None once it is gone."""
+    try:
+        with open(f"/proc/{pid}/smaps_rollup") as f:
+            fields = dict(line.split(":", 1) for line in f if ":" in line)
+    except (FileNotFoundError, ProcessLookupError):
+        return None
+    return int(fields["Pss"].split()[0]) / 1024
+
+
 def rss_mb(pid: int) -> float:
     """Resident memory of a (running) process now, MB."""
     found = memory_mb(pid)

@@ -40,7 +40,8 @@ import time
 from pathlib import Path
 
 from benchmarks.cpu_quota import CpuQuota
-from benchmarks.harness import cpu_seconds, free_port, memory_mb, percentile, processes, start_router, wait_for_port
+from benchmarks.harness import (cpu_seconds, free_port, memory_mb, percentile, processes, pss_mb, start_router,
+                                wait_for_port)
 from benchmarks.security import open_as
 
 CAR = "elettra"
@@ -315,6 +316,7 @@ def measure(session, env, quota: CpuQuota, fox_pid: int, fox_port: int, seconds:
         c1 = {name: process_cpu(pid) for name, pid in programs.items()}
         b1, throttled1 = directory_bytes(drives), quota.throttling()
         memory = {name: rss for name, pid in programs.items() if (rss := memory_mb(pid)) is not None}
+        shared = {name: pss_mb(pid) for name, pid in programs.items()}
     finally:
         setpoints.stop()
         client.close()
@@ -338,7 +340,8 @@ def measure(session, env, quota: CpuQuota, fox_pid: int, fox_port: int, seconds:
         "watchdog_trips": len(trips), "trips": trips[:5], "setpoint_errors": sorted(set(setpoints.errors))[:5],
         "estimator_lag_ms": {"p50": round(percentile(lags, 50), 1), "p99": round(percentile(lags, 99), 1)},
         "programs": {name: {"cpu_core_share": round(cpu[name], 4), "rss_mb": round(memory[name][0], 1),
-                            "peak_rss_mb": round(memory[name][1], 1)} for name in cpu},
+                            "peak_rss_mb": round(memory[name][1], 1),
+                            "pss_mb": round(shared[name] or 0.0, 1)} for name in cpu},
         "programs_gone": sorted(set(programs) - set(cpu)),
         "total_cpu_core_share": round(total, 4),
         "total_pi_share": round(total / PI_CORES, 4),
@@ -368,10 +371,11 @@ def print_report(r: dict) -> None:
     print(f"watchdog trips        {r['watchdog_trips']}   (goal 0)" + (f": {r['trips']}" if r["trips"] else ""))
     lag = r["estimator_lag_ms"]
     print(f"estimator lag         p50 {lag['p50']:6.1f} ms  p99 {lag['p99']:6.1f} ms  (its state's time to here)")
-    print(f"\n{'program':12s} {'CPU % core':>10s} {'RSS MB':>7s} {'peak':>6s}")
+    print(f"\n{'program':12s} {'CPU % core':>10s} {'RSS MB':>7s} {'peak':>6s} {'PSS MB':>7s}")
     for name, p in sorted(r["programs"].items(), key=lambda item: -item[1]["cpu_core_share"]):
         flag = "  > 60 MB" if p["rss_mb"] > GOALS["rss_mb"] else ""
-        print(f"{name:12s} {100 * p['cpu_core_share']:10.1f} {p['rss_mb']:7.1f} {p['peak_rss_mb']:6.1f}{flag}")
+        print(f"{name:12s} {100 * p['cpu_core_share']:10.1f} {p['rss_mb']:7.1f} {p['peak_rss_mb']:6.1f} "
+              f"{p['pss_mb']:7.1f}{flag}")
     if r["programs_gone"]:
         print(f"{'gone':12s} {', '.join(r['programs_gone'])} (died while measured)")
     print(f"{'together':12s} {100 * r['total_cpu_core_share']:10.1f}   = {100 * r['total_pi_share']:.1f} % of the "

@@ -21,7 +21,8 @@ def test_the_pi_profile_runs_on_the_twins_and_is_measured(capsys):
     assert pi.main(["--seconds", "4", "--warmup", "2", "--cores", "2", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert set(report["programs"]) == PI_PROGRAMS
-    assert all(p["rss_mb"] > 0 and p["cpu_core_share"] >= 0 for p in report["programs"].values())
+    assert all(p["rss_mb"] > 0 and 0 < p["pss_mb"] <= p["rss_mb"] and p["cpu_core_share"] >= 0
+               for p in report["programs"].values())
     rates = report["rates"]
     assert STREAMS <= set(rates), rates
     assert all(rates[key]["measured_hz"] > 0 and rates[key]["nominal_hz"] for key in STREAMS)
