@@ -40,8 +40,16 @@ import time
 from pathlib import Path
 
 from benchmarks.cpu_quota import CpuQuota
-from benchmarks.harness import (cpu_seconds, free_port, memory_mb, percentile, processes, pss_mb, start_router,
-                                wait_for_port)
+from benchmarks.harness import (
+    cpu_seconds,
+    free_port,
+    memory_mb,
+    percentile,
+    processes,
+    pss_mb,
+    start_router,
+    wait_for_port,
+)
 from benchmarks.security import open_as
 
 CAR = "elettra"
