@@ -148,17 +148,26 @@ class Watch:
 
         out = {}
         with self.lock:
-            counts = {key: sum(1 for t in times if t0 <= t < t1) for key, times in self.arrivals.items()}
-        for key in sorted(counts):
+            inside = {key: [t for t in times if t0 <= t < t1] for key, times in self.arrivals.items()}
+        for key in sorted(inside):
             found = topic_of_key(key)
             nominal = found[0].nominal_hz if found else None
-            measured = counts[key] / (t1 - t0)
+            measured = _rate(inside[key], t1 - t0)
             out[key[len(self.prefix):]] = {"nominal_hz": nominal, "measured_hz": round(measured, 3),
                                            "share": round(measured / nominal, 4) if nominal else None}
         return out
 
     def close(self) -> None:
         self._sub.undeclare()
+
+
+def _rate(times: list[float], window_s: float) -> float:
+    """Samples a second: the mean interval between the first and the last in the window, so
+    that where the window's edges fall does not count (a 1 Hz key has 59 or 60 samples in
+    60 s by its phase alone); a sample missing between them still lengthens it."""
+    if len(times) < 2:
+        return len(times) / window_s
+    return (len(times) - 1) / (times[-1] - times[0])
 
 
 class Setpoints:
