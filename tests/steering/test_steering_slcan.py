@@ -80,3 +80,15 @@ def test_a_garbled_byte_spoils_its_line_and_not_the_bus():
     assert bus._read(0.1) == "\r"
     msg, _ = bus._recv_internal(0.1)
     assert (msg.arbitration_id, bytes(msg.data)) == (0x181, b"\xab\x01")
+
+
+def test_an_slcan_adapters_receive_thread_wakes_100_times_a_second_when_idle_not_1000():
+    """python-can's slcan port times out after 1 ms: its receive thread polled 1000 times a
+    second whenever the bus was quiet, on the car's USB adapter too."""
+    from viena.services.steering.driver.epos import _bus_options
+    from viena.services.steering.model.drive import DriveSettings
+
+    assert _bus_options(DriveSettings(interface="slcan", channel="/dev/ttyACM0"))["timeout"] == 0.01
+    assert _bus_options(DriveSettings(interface="slcan", channel="/dev/ttyACM0",
+                                      bus_options={"timeout": 0.05}))["timeout"] == 0.05
+    assert "timeout" not in _bus_options(DriveSettings(interface="socketcan", channel="can0"))

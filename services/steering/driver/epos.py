@@ -378,11 +378,15 @@ class _ReceiveFailure(can.Listener):
 
 
 def _bus_options(s: DriveSettings) -> dict[str, Any]:
-    """python-can's arguments, with what slcan on a TCP socket (the simulated drive) needs."""
+    """python-can's arguments, with what slcan needs: the port's read timeout is how often
+    the receive thread wakes when nothing comes (python-can's 0.001 s is 1000 times a
+    second, on the car's adapter too); and on a TCP socket (the simulated drive) no adapter
+    to wait for."""
     options = dict(s.bus_options)
+    if s.interface == "slcan":
+        options.setdefault("timeout", 0.01)           # idle polling: 100/s, not 1000/s
     if s.interface == "slcan" and s.channel.startswith("socket://"):
         options.setdefault("sleep_after_open", 0)     # no adapter to reset on a socket
-        options.setdefault("timeout", 0.01)           # idle polling: 100/s, not 1000/s
         urlhandler.use()                              # whole reads, not a byte at a time
     return options
 
