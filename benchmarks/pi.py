@@ -222,6 +222,7 @@ class Setpoints:
         return self
 
     def _run(self) -> None:
+        from viena.services.pilot.service import SETPOINT_GAP_S
         from viena.services.steering.client import next_seq
         from viena.services.steering.model.signing import signed_setpoint
 
@@ -245,11 +246,12 @@ class Setpoints:
                     self._lease = self.arm()
                 except RuntimeError as exc:                 # said in the report; asked again next period
                     self.errors.append(str(exc))
-            # the next query at least half a period after this answer, as the pilot's: the
-            # router lets setpoints through at most 200 Hz per client (compose/zenoh/router.json5),
-            # and it saw this answer after this query, so it sees the next at least 10 ms later
-            next_at = max(next_at + period, time.monotonic() + period / 2)
-            self._stop.wait(next_at - time.monotonic())
+            # on schedule, but never within SETPOINT_GAP_S of this answer, as the pilot's: the
+            # router lets setpoints through at most 200 Hz per client (compose/zenoh/router.json5)
+            next_at += period
+            if time.monotonic() - next_at > period:        # fell a period behind: start again
+                next_at = time.monotonic()
+            self._stop.wait(max(next_at, time.monotonic() + SETPOINT_GAP_S) - time.monotonic())
 
     def stop(self) -> None:
         self._stop.set()

@@ -77,14 +77,19 @@ class RingSubscribers:
         self._last = stamp()
         self._said_unstamped = self._said_closed = False
 
-    def declare(self, session, keyexprs: list[str]) -> list:
+    def declare(self, session, keyexprs: list[str], samples: int | None = None) -> list:
+        """A subscriber per key expression, each with a ring of `samples` (RING_SAMPLES)."""
         import zenoh
 
-        return [session.declare_subscriber(k, zenoh.handlers.RingChannel(RING_SAMPLES)) for k in keyexprs]
+        return [session.declare_subscriber(k, zenoh.handlers.RingChannel(samples or RING_SAMPLES))
+                for k in keyexprs]
 
-    def take(self, subscribers: list) -> tuple[list[tuple[int, str, str, bytes]], list[int]]:
+    def take(self, subscribers: list, keep: Callable[[str, str], bool] | None = None,
+             ) -> tuple[list[tuple[int, str, str, bytes]], list[int]]:
         """Every sample waiting, as (log time, key, encoding, payload) in log time order, and
-        how many each ring gave (one that gave RING_SAMPLES or more may have dropped some)."""
+        how many each ring gave (one that gave RING_SAMPLES or more may have dropped some).
+        `subscribers`: the subscribers, or their handlers; `keep(key, encoding)`: False for a
+        sample nobody wants (its payload is then not even copied)."""
         from zenoh import ZError
 
         now, wall = self.stamp(), clock.time_ns()
@@ -102,12 +107,13 @@ class RingSubscribers:
                         at = max(since, min(now, now - wall + stamped.get_time_as_ntp64().as_nanos()))
                     else:
                         unstamped += 1
-                    ring.append((at, str(sample.key_expr), str(sample.encoding), sample.payload.to_bytes()))
+                    key, encoding = str(sample.key_expr), str(sample.encoding)
+                    if keep is None or keep(key, encoding):
+                        ring.append((at, key, encoding, sample.payload.to_bytes()))
             except ZError as exc:           # the subscriber or its session is gone: keep what came
                 if not self._said_closed:
                     self._said_closed = True
-                    log.warning("a recorder's subscriber cannot be read (%s): its samples are no longer taken",
-                                exc)
+                    log.warning("a subscriber's ring cannot be read (%s): its samples are no longer taken", exc)
         counts = [len(ring) for ring in rings]
         total = sum(counts)
         if total and unstamped == total and not self._said_unstamped:

@@ -40,6 +40,7 @@ import time
 from viena.common.access import ROLES
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
+from viena.common.recorder import RingSubscribers
 from viena.common.recording import ReceiveClock
 from viena.common.samples import topics
 from viena.common.session import PERSON_IDENTITY, add_common_arguments, config_endpoints, zenoh_options
@@ -84,16 +85,18 @@ class Bridge:
     thread; `stop()` undeclares (what is still in the ring is dropped) and stops the thread.
 
     The samples wait in zenoh's own ring (in Rust) for the one converting thread, which
-    takes all that came every BATCH_S: some 40 wake-ups a second, where waking for each
-    sample was one per sample (330 a second with one client on the car's every key) and a
-    Python callback two (zenoh runs it on a Python thread of its own). A viewer sees a
-    sample at most BATCH_S later; Foxglove draws some 60 frames a second."""
+    takes all that came every BATCH_S (common/recorder.py RingSubscribers, as the black box
+    does): some 40 wake-ups a second rather than one per sample (330 a second with one
+    client on the car's every key), or two for a Python callback (zenoh runs it on a Python
+    thread of its own). A viewer sees a sample at most BATCH_S later; Foxglove draws some
+    60 frames a second. Each sample's log time is still its arrival, at the car's router
+    (its zenoh timestamp), and `--max-rate` thins by that time."""
 
     def __init__(self, session, keyexpr: str, channels, max_rate_hz: float = 0.0,
                  queue_samples: int = QUEUE_SAMPLES):
         self.session, self.keyexpr, self.channels = session, keyexpr, channels
         self.downsampler = Downsampler(max_rate_hz)
-        self.clock = ReceiveClock()
+        self.rings = RingSubscribers(ReceiveClock())
         self.silence = SilenceWarning("viena foxglove", [keyexpr])
         self.queue_samples = queue_samples
         self._subscriber = None
@@ -101,12 +104,11 @@ class Bridge:
         self._thread: threading.Thread | None = None
 
     def start(self) -> None:
-        import zenoh
-
-        ring: zenoh.handlers.RingChannel = zenoh.handlers.RingChannel(self.queue_samples)
-        subscriber = self._subscriber = self.session.declare_subscriber(self.keyexpr, ring)
-        # the handler, not the subscriber: undeclaring the subscriber while this thread waits
-        # on it would fail ("Already borrowed"); its handler's recv() ends with an error instead
+        self._stopping.clear()
+        (subscriber,) = self.rings.declare(self.session, [self.keyexpr], self.queue_samples)
+        self._subscriber = subscriber
+        # the handler, not the subscriber: undeclaring the subscriber while this thread reads
+        # it could fail ("Already borrowed"); its handler's try_recv() raises instead
         self._thread = threading.Thread(target=self._convert_loop, args=(subscriber.handler,),
                                         name="foxglove-convert", daemon=True)
         self._thread.start()
@@ -114,27 +116,21 @@ class Bridge:
     def _convert_loop(self, handler) -> None:
         heard = False
         while not self._stopping.wait(BATCH_S):
-            try:
-                batch = []
-                while (sample := handler.try_recv()) is not None:
-                    batch.append(sample)
-            except Exception as exc:    # the ring is closed: undeclared by stop(), or the session gone
-                if not self._stopping.is_set():
-                    log.info("the car's samples stopped coming: %s", exc)
+            taken, _ = self.rings.take([handler], self.channels.wanted)   # nobody watches it: not even copied
+            if self._stopping.is_set():
                 return
-            if batch and not heard:
+            if taken and not heard:
                 self.silence.heard()
                 heard = True
-            self._convert(batch)
+            self._convert(taken)
 
-    def _convert(self, samples: list) -> None:
-        publish, wanted, clock, thin = self.channels.publish, self.channels.wanted, self.clock, self.downsampler
-        for sample in samples:
-            key, encoding = str(sample.key_expr), str(sample.encoding)
-            if not wanted(key, encoding) or (thin.period_s and not thin.keep(key, time.monotonic())):
-                continue                # nobody watches it: not even copied
+    def _convert(self, taken: list[tuple[int, str, str, bytes]]) -> None:
+        publish, thin = self.channels.publish, self.downsampler
+        for log_time, key, encoding, data in taken:
+            if thin.period_s and not thin.keep(key, log_time / 1e9):
+                continue
             try:
-                publish(key, encoding, sample.payload.to_bytes(), clock())
+                publish(key, encoding, data, log_time)
             except Exception:           # a bug in one conversion must not end the bridge
                 log.exception("cannot convert a sample on %s", key)
 

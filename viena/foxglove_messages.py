@@ -186,7 +186,8 @@ def json_bytes(value: Any) -> bytes:
     """A decoded sample as JSON text: non-finite floats as null, bytes as hex (JSON has
     neither). orjson writes it in one pass, NaN as null of its own; it is a fifth of the
     bridge's work with the standard library's encoder (docs/deployment.md#9-the-pis-budget).
-    What orjson refuses (an integer beyond 64 bits) goes the standard library's way."""
+    What orjson refuses (an integer beyond 64 bits, nesting beyond 254 levels, bytes or
+    tuple keys) goes the standard library's way."""
     try:
         return orjson.dumps(value, default=_hex, option=orjson.OPT_NON_STR_KEYS)
     except TypeError:

@@ -63,6 +63,10 @@ from viena.services.steering.client import SteeringClient
 IDENTITY = PROGRAM_IDENTITY["pilot"]
 #: how often the route held is published again on pilot/path
 PATH_PERIOD_S = 5.0
+#: the least time from one setpoint's end to the next: the router lets a client's setpoints
+#: through at most 200 Hz (5 ms apart, compose/zenoh/router.json5), and it has seen this
+#: setpoint (and its answer) before the next leaves
+SETPOINT_GAP_S = 0.006
 
 
 @dataclass(frozen=True)
@@ -157,11 +161,11 @@ class PilotService(Service):
     def _run(self) -> None:
         period_s = 1.0 / self.settings.setpoint_rate_hz
         state_period_s = 1.0 / self.settings.state_rate_hz
-        next_tick = next_state = clock.monotonic()
+        due = next_tick = next_state = clock.monotonic()
         seq = 0
         try:
             while not self.stopping.is_set():
-                self._lateness.add(clock.monotonic() - next_tick)
+                self._lateness.add(clock.monotonic() - due)      # against the schedule: a slow step shows
                 try:
                     self._step()
                 except Exception:                        # noqa: BLE001 - never leave the wheel to chance
@@ -177,10 +181,13 @@ class PilotService(Service):
                 if now >= self._path_due and self.pilot.route is not None:
                     self._path_due = now + PATH_PERIOD_S
                     self._path_pub.put(path_sample(self.pilot.route, clock.time_ns()))
-                # the next tick at least half a period after this one ends, however late
-                # this one was: a late setpoint is not followed by a burst to catch up, which
-                # the router would cut (it lets setpoints through at most 200 Hz a client)
-                next_tick = max(next_tick + period_s, clock.monotonic() + period_s / 2)
+                # the next tick on schedule, but never within SETPOINT_GAP_S of this one's end:
+                # a late setpoint is not followed by a burst to catch up, which the router
+                # would cut (it lets a client's setpoints through at most 200 Hz)
+                due += period_s
+                if clock.monotonic() - due > period_s:          # fell a period behind: start again
+                    due = clock.monotonic()
+                next_tick = max(due, clock.monotonic() + SETPOINT_GAP_S)
                 self.stopping.wait(max(0.0, next_tick - clock.monotonic()))
         finally:
             self.pilot.stop("pilot shut down")

@@ -202,14 +202,15 @@ def speed_of_fix(fix: dict) -> tuple[str, int, float, float, bool]:
 
 
 def horizontal_speed(vel_ecef: tuple[float, float, float], lat_deg: float, lon_deg: float) -> float:
-    """The speed along the ground: the ECEF velocity without its part along the local
-    vertical (the ellipsoid's normal at lat, lon; pymap3d's "up", checked against it in the
-    tests). Written out because pymap3d brings numpy, 13 MB of the steering's 60 on the Pi,
-    for this one dot product."""
+    """The speed along the ground: the ECEF velocity's east and north (the local frame at
+    the geodetic lat, lon, as pymap3d's uvw2enu turns it; checked against it in the
+    tests). Written out because pymap3d brings numpy, 13 MB of the steering's memory, for
+    these two lines."""
     lat, lon = math.radians(lat_deg), math.radians(lon_deg)
-    up = (math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat))
-    vertical = sum(v * u for v, u in zip(vel_ecef, up))
-    return math.sqrt(max(sum(v * v for v in vel_ecef) - vertical * vertical, 0.0))
+    vx, vy, vz = vel_ecef
+    east = -math.sin(lon) * vx + math.cos(lon) * vy
+    north = -math.sin(lat) * (math.cos(lon) * vx + math.sin(lon) * vy) + math.cos(lat) * vz
+    return math.hypot(east, north)
 
 
 def main(argv=None) -> int:
