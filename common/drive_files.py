@@ -32,6 +32,7 @@ from pathlib import Path
 from viena.common import clock
 from viena.common.recording import (
     CHUNK_BYTES,
+    REPAIRING_SUFFIX,
     RecordingError,
     RecordingWriter,
     drive_file,
@@ -141,8 +142,20 @@ def repair_leftovers(directory: Path, say: Say = log.info) -> list[Path]:
     complete file it should have been. The `.part` goes only when nothing but its unfinished
     tail was lost; otherwise it stays beside the repair as `*.mcap.broken`, as does one that
     cannot be read at all. Other names (a recording someone else writes there) are not the
-    black box's to touch. One line each. The files made."""
+    black box's to touch. One line each. The files made.
+
+    A repair cut short itself (a crash, a power cut while repairing) left a `.repairing`
+    beside its `.part`: it goes first (the `.part` goes only once a repair is complete, so
+    the repair is done again from it), or it would sit outside the budget for ever."""
     made: list[Path] = []
+    for stale in sorted(directory.glob(f"viena-*.mcap{REPAIRING_SUFFIX}")):
+        if drive_file(stale.with_suffix("")) is None:
+            continue
+        try:
+            stale.unlink()
+            say(f"deleted {stale.name}, a repair cut short (done again from its .part if it is there)")
+        except OSError as exc:
+            say(f"cannot delete {stale.name}, a repair cut short: {exc.strerror or exc}")
     for part in sorted(directory.glob(f"viena-*.mcap{PART_SUFFIX}")):
         if drive_file(part) is None:
             continue

@@ -413,6 +413,10 @@ def human_bytes(n: float) -> str:
     return f"{n:.1f} GB"
 
 
+#: what a repair writes until it is complete (beside the `.part` it reads)
+REPAIRING_SUFFIX = ".repairing"
+
+
 def repair(path: str | Path, output: str | Path | None = None) -> tuple[Path, int, list[str]]:
     """Rewrite a recording cut short (`drive.mcap.part` after a kill -9 or a power cut) as a
     complete MCAP file that any reader opens: every sample that can still be read, its
@@ -425,7 +429,7 @@ def repair(path: str | Path, output: str | Path | None = None) -> tuple[Path, in
     output = Path(output)
     if output.resolve() == path.resolve():
         raise RecordingError(f"{output}: the repaired recording needs a name of its own")
-    writer = RecordingWriter(output, part_suffix=".repairing")     # not the .part being read
+    writer = RecordingWriter(output, part_suffix=REPAIRING_SUFFIX)     # not the .part being read
     try:
         for m in source.messages():
             writer.write(m.key, m.encoding, m.log_time, m.data, m.publish_time)

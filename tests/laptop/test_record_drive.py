@@ -316,3 +316,18 @@ def test_the_budget_counts_the_kept_originals_too(tmp_path):
                                       "viena-20240601-100000_0002.mcap"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.mcap.broken", "viena-20240601-110000_0001.mcap",
                                                           "viena-20240601-110000_0001.mcap.broken"]
+
+
+def test_a_repair_cut_short_is_done_again_and_its_leftover_deleted(tmp_path):
+    """A crash while repairing left a `.repairing` beside the `.part`: the next run deletes it
+    (it would sit outside the budget for ever) and repairs the `.part` again."""
+    killed_writer(tmp_path / "viena-20240601-095000_0001.mcap", 120)
+    stale = tmp_path / "viena-20240601-095000_0001.mcap.repairing"
+    stale.write_bytes(b"half a repair")
+    orphan = tmp_path / "viena-20240601-094000_0001.mcap.repairing"      # its .part went to .broken
+    orphan.write_bytes(b"half a repair")
+    said: list[str] = []
+    DriveWriter(tmp_path, split_s=1.0, started_ns=T0, say=said.append).discard()
+    assert not stale.exists() and not orphan.exists()
+    assert len(messages(tmp_path / "viena-20240601-095000_0001.mcap")) == 120
+    assert sum("a repair cut short" in line for line in said) == 2
