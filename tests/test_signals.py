@@ -50,3 +50,32 @@ print("stopped" if stop.wait() else "not stopped")
 def test_a_signal_another_thread_receives_still_stops_a_main_thread_waiting_without_end():
     """A `viena router` flooded just before ignored its SIGTERM so, in CI."""
     stops(ON_ANOTHER_THREAD, "the main thread never ran the handler")
+
+
+class AskedWaits:
+    """A stop event that records how long each wait was asked to take, and stops after `n`."""
+
+    def __init__(self, n: int):
+        self.asked: list[float] = []
+        self.n = n
+
+    def wait(self, timeout: float) -> bool:
+        import time
+
+        self.asked.append(timeout)
+        time.sleep(timeout)
+        return len(self.asked) >= self.n
+
+
+def test_a_services_main_thread_never_waits_longer_than_the_signal_check():
+    """A service's main thread sees a SIGTERM another thread received within SIGNAL_CHECK_S,
+    not after a whole health period: its stop deadline (2 s, supervisor kills at 3) starts
+    only once the handler runs."""
+    from viena.common.service import HEALTH_PERIOD_S, Service
+    from viena.common.signals import SIGNAL_CHECK_S
+
+    service = Service.__new__(Service)            # only the loop: no settings, no session
+    service.stopping = AskedWaits(n=6)
+    published = list(service._health_periods())
+    assert max(service.stopping.asked) <= SIGNAL_CHECK_S < HEALTH_PERIOD_S
+    assert published                               # the first four waits add up to a health period
