@@ -215,7 +215,7 @@ class KeyStore:
                                  or not 1 <= days <= CA_DAYS):
             raise SecurityError(f"--days {days}: a certificate lasts from 1 to {CA_DAYS} days")
         ca_key, ca_cert = self._load_ca()
-        cert_path = self._cert_path(name)
+        cert_path = self.cert_path(name)
         key_path = cert_path.with_suffix(".key")
         for path in (cert_path, key_path):
             if path.exists() and not force:
@@ -248,7 +248,7 @@ class KeyStore:
         if reason not in REASONS:
             raise SecurityError(f"unknown reason '{reason}' (reasons: {', '.join(REASONS)})")
         ca_key, ca_cert = self._load_ca()
-        cert_path = self._cert_path(name)
+        cert_path = self.cert_path(name)
         if not cert_path.exists():
             earlier = [r for r in self.revocations() if r.name == name]
             if earlier:
@@ -303,7 +303,7 @@ class KeyStore:
         (`certificate`), and its key there, private to its owner and matching. Anything else
         is a SecurityError with the fix."""
         self._require_store()
-        cert_path = self._cert_path(name)
+        cert_path = self.cert_path(name)
         if not cert_path.exists():
             have = ", ".join(i.name for i in self.identities()) or "none"
             raise SecurityError(f"no identity '{name}' in {self.dir} (have: {have}): "
@@ -368,9 +368,11 @@ class KeyStore:
         return ([target.identity(name) for name in names],
                 [target.certificate(target.dir / i.cert.name) for i in alone])
 
-    # -- internals ----------------------------------------------------------------------------
-    def _cert_path(self, name: str) -> Path:
+    def cert_path(self, name: str) -> Path:
+        """Where the identity `name`'s certificate is (its key beside it), checked or not."""
         return self.dir / f"{name}.pem"
+
+    # -- internals ----------------------------------------------------------------------------
 
     def _certificate_files(self) -> list[Path]:
         return [p for p in sorted(self.dir.glob("*.pem")) if p.stem not in (CA, CRL)]

@@ -72,22 +72,22 @@ class RingSubscribers:
     made never to go back, so log times only grow across every key expression.
     """
 
-    def __init__(self, stamp: ReceiveClock):
-        self.stamp = stamp
-        self._last = stamp()
+    def __init__(self, stamp: ReceiveClock | None = None, samples: int | None = None):
+        self.stamp = stamp or ReceiveClock()
+        self.samples = samples or RING_SAMPLES       # each ring's size
+        self._last = self.stamp()
         self._said_unstamped = self._said_closed = False
 
-    def declare(self, session, keyexprs: list[str], samples: int | None = None) -> list:
-        """A subscriber per key expression, each with a ring of `samples` (RING_SAMPLES)."""
+    def declare(self, session, keyexprs: list[str]) -> list:
+        """A subscriber per key expression, each with a ring of `samples`."""
         import zenoh
 
-        return [session.declare_subscriber(k, zenoh.handlers.RingChannel(samples or RING_SAMPLES))
-                for k in keyexprs]
+        return [session.declare_subscriber(k, zenoh.handlers.RingChannel(self.samples)) for k in keyexprs]
 
     def take(self, subscribers: list, keep: Callable[[str, str], bool] | None = None,
              ) -> tuple[list[tuple[int, str, str, bytes]], list[int]]:
         """Every sample waiting, as (log time, key, encoding, payload) in log time order, and
-        how many each ring gave (one that gave RING_SAMPLES or more may have dropped some).
+        how many each ring gave (one that gave `samples` or more may have dropped some).
         `subscribers`: the subscribers, or their handlers; `keep(key, encoding)`: False for a
         sample nobody wants (its payload is then not even copied)."""
         from zenoh import ZError
@@ -221,14 +221,13 @@ class Recorder:
         if self._rings is not None:
             rung, counts = self._rings.take(self._subscribers)
             self._largest_batch = max(self._largest_batch, len(rung))
-            full = sum(n >= RING_SAMPLES for n in counts)
+            full = sum(n >= self._rings.samples for n in counts)
             if full:
                 self.possibly_dropped += full
                 log.warning("the writer fell %d samples behind: zenoh's ring (%d) may have dropped the oldest",
-                            max(counts), RING_SAMPLES)
-            if self.on_sample is not None:
-                for _ in rung:
-                    self.on_sample()
+                            max(counts), self._rings.samples)
+            if rung and self.on_sample is not None:
+                self.on_sample()                 # heard (a silence warning's flag): once a batch will do
             return rung
         arrived = self._arrived
         return [arrived.popleft() for _ in range(len(arrived))]

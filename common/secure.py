@@ -69,7 +69,7 @@ def secure_client(conf, store: KeyStore, name: str, checked: str | None = None) 
 
 def identity_files(store: KeyStore, name: str) -> tuple[Path, Path]:
     """The certificate and key of `name` (`still_checked` found them unchanged)."""
-    cert = store.dir / f"{name}.pem"
+    cert = store.cert_path(name)
     return cert, cert.with_suffix(".key")
 
 

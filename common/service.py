@@ -114,6 +114,8 @@ class Service:
     #: the unit a process runs when not told (--unit); None: the service has no units
     #: (one per car: sim, steering, estimator) and no --unit flag
     default_unit: str | None = None
+    #: the identity it presents on a secured car when not its unit's or its name (the pilot's)
+    identity: str | None = None
     description = ""
 
     def __init__(self, args: argparse.Namespace):
@@ -124,7 +126,7 @@ class Service:
         self.unit = getattr(args, "unit", None) or self.default_unit
         self.keys = Keys(car_name(args, toml))
         self.settings = self.read_settings(toml, self.unit, args)
-        self.zenoh_config = zenoh_config(args, toml, identity=self.unit or self.name)
+        self.zenoh_config = zenoh_config(args, toml, identity=self.identity or self.unit or self.name)
         self.health = Health(self.name, self.unit)
         self.stopping = clock.Event()
         self.session: Any = None           # the zenoh.Session (or the lockstep bus's), once serving

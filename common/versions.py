@@ -8,10 +8,11 @@ import platform
 import sys
 
 
-def installed_version(dist: str) -> str:
-    """A distribution's version from its `NAME-VERSION.dist-info` folder on sys.path, which
-    is what importlib.metadata reads too; "not installed" when there is none."""
-    wanted = dist.replace("-", "_").lower()
+def installed_versions(*dists: str) -> dict[str, str]:
+    """Distributions' versions from their `NAME-VERSION.dist-info` folders on sys.path (what
+    importlib.metadata reads too), in one pass over it; "not installed" for one without."""
+    wanted = {dist.replace("-", "_").lower(): dist for dist in dists}
+    found: dict[str, str] = {}
     for entry in sys.path:
         try:
             names = os.listdir(entry or ".")
@@ -19,14 +20,15 @@ def installed_version(dist: str) -> str:
             continue
         for name in names:
             stem, _, ext = name.rpartition(".")
-            if ext == "dist-info" and stem.partition("-")[0].lower() == wanted:
-                return stem.partition("-")[2]
-    return "not installed"
+            dist = wanted.get(stem.partition("-")[0].lower()) if ext == "dist-info" else None
+            if dist is not None:
+                found.setdefault(dist, stem.partition("-")[2])   # the first on sys.path, as import finds it
+    return {dist: found.get(dist, "not installed") for dist in dists}
 
 
 def versions() -> dict[str, str]:
     """viena's, zenoh's, Python's and the machine's."""
-    return {"viena": installed_version("viena"), "eclipse-zenoh": installed_version("eclipse-zenoh"),
+    return {**installed_versions("viena", "eclipse-zenoh"),
             "python": platform.python_version(), "platform": f"{platform.system()} {platform.machine()}"}
 
 

@@ -41,7 +41,6 @@ from viena.common.access import ROLES
 from viena.common.keys import Keys
 from viena.common.log import setup_logging
 from viena.common.recorder import RingSubscribers
-from viena.common.recording import ReceiveClock
 from viena.common.samples import topics
 from viena.common.session import PERSON_IDENTITY, add_common_arguments, config_endpoints, zenoh_options
 from viena.common.signals import stop_on_signals
@@ -51,7 +50,7 @@ log = logging.getLogger("viena.foxglove")
 DEFAULT_PORT = 8765
 #: messages kept per client by the server; the oldest is dropped when a client lags
 DEFAULT_BACKLOG = 256
-#: samples waiting between zenoh's threads and the converting thread (about 2 s of the car)
+#: the ring's size: samples waiting for the converting thread (about 2 s of the car)
 QUEUE_SAMPLES = 1000
 #: the converting thread takes what came this often (Bridge)
 BATCH_S = 0.025
@@ -92,20 +91,20 @@ class Bridge:
     60 frames a second. Each sample's log time is still its arrival, at the car's router
     (its zenoh timestamp), and `--max-rate` thins by that time."""
 
-    def __init__(self, session, keyexpr: str, channels, max_rate_hz: float = 0.0,
-                 queue_samples: int = QUEUE_SAMPLES):
+    def __init__(self, session, keyexpr: str, channels, max_rate_hz: float = 0.0):
         self.session, self.keyexpr, self.channels = session, keyexpr, channels
         self.downsampler = Downsampler(max_rate_hz)
-        self.rings = RingSubscribers(ReceiveClock())
+        self.rings = RingSubscribers(samples=QUEUE_SAMPLES)
         self.silence = SilenceWarning("viena foxglove", [keyexpr])
-        self.queue_samples = queue_samples
+        #: batches in which the ring was full: zenoh may have dropped its oldest samples
+        self.possibly_dropped = 0
         self._subscriber = None
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
 
     def start(self) -> None:
         self._stopping.clear()
-        (subscriber,) = self.rings.declare(self.session, [self.keyexpr], self.queue_samples)
+        (subscriber,) = self.rings.declare(self.session, [self.keyexpr])
         self._subscriber = subscriber
         # the handler, not the subscriber: undeclaring the subscriber while this thread reads
         # it could fail ("Already borrowed"); its handler's try_recv() raises instead
@@ -114,14 +113,14 @@ class Bridge:
         self._thread.start()
 
     def _convert_loop(self, handler) -> None:
-        heard = False
         while not self._stopping.wait(BATCH_S):
-            taken, _ = self.rings.take([handler], self.channels.wanted)   # nobody watches it: not even copied
+            taken, counts = self.rings.take([handler], self.channels.wanted)   # nobody watches it: not even copied
             if self._stopping.is_set():
                 return
-            if taken and not heard:
+            if counts[0] >= self.rings.samples:
+                self.possibly_dropped += 1       # said in the bridge's report, every REPORT_PERIOD_S at most
+            if taken:
                 self.silence.heard()
-                heard = True
             self._convert(taken)
 
     def _convert(self, taken: list[tuple[int, str, str, bytes]]) -> None:
@@ -251,7 +250,7 @@ def _run(args: argparse.Namespace) -> int:
     bridge.start()
     print(f"viena foxglove: serving {keyexpr} on ws://{args.host}:{server.port} "
           f"(e-stop {'offered' if services else 'not offered'}: {why})", file=sys.stderr, flush=True)
-    reported = 0
+    reported = full = 0
     next_report = time.monotonic() + REPORT_PERIOD_S
     try:
         while not stop.wait(0.2):
@@ -262,6 +261,10 @@ def _run(args: argparse.Namespace) -> int:
                 if invalid > reported:
                     log.warning("%d samples failed their schema", invalid)
                     reported = invalid
+                if bridge.possibly_dropped > full:
+                    log.warning("the bridge fell behind the car %d times: zenoh's ring (%d samples) may have "
+                                "dropped the oldest", bridge.possibly_dropped, QUEUE_SAMPLES)
+                    full = bridge.possibly_dropped
     finally:
         bridge.stop()
         server.stop()

@@ -6,7 +6,6 @@ never hold a secret (a login is a file's name: services/ntrip)."""
 from __future__ import annotations
 
 import dataclasses
-from pathlib import PurePath
 from typing import Any
 
 from viena.common.display import fields_view
@@ -40,9 +39,7 @@ def _plain(value: Any) -> Any:
         return {str(k): _plain(v) for k, v in value.items()}
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return settings_map(value)
-    if isinstance(value, PurePath):
-        return str(value)
-    return str(value)
+    return str(value)                     # paths and anything else
 
 
 def monitor_view(sample: dict) -> dict[str, str]:

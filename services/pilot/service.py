@@ -46,7 +46,7 @@ from viena.common.samples import topics
 from viena.common.samples.pilot import path_sample
 from viena.common.schema import unpack
 from viena.common.service import Service, run_service
-from viena.common.session import zenoh_config, zenoh_options
+from viena.common.session import zenoh_options
 from viena.common.settings import part, setting
 from viena.services.pilot.commands import Commands
 from viena.services.pilot.delays import Window
@@ -63,10 +63,6 @@ from viena.services.steering.client import SteeringClient
 IDENTITY = PROGRAM_IDENTITY["pilot"]
 #: how often the route held is published again on pilot/path
 PATH_PERIOD_S = 5.0
-#: the least time from one setpoint's end to the next: the router lets a client's setpoints
-#: through at most 200 Hz (5 ms apart, compose/zenoh/router.json5), and it has seen this
-#: setpoint (and its answer) before the next leaves
-SETPOINT_GAP_S = 0.006
 
 
 @dataclass(frozen=True)
@@ -94,10 +90,11 @@ class PilotService(Service):
     name = "pilot"
     settings_class = PilotServiceSettings
 
+    #: not `pilot`: that identity is a person's (viena keys init); this is the program
+    identity = IDENTITY
+
     def __init__(self, args):
         super().__init__(args)
-        # not `pilot`: that identity is a person's (viena keys init); this is the program
-        self.zenoh_config = zenoh_config(args, self.toml, identity=IDENTITY)
         self._refusals = Throttled(self.log, "refused")
 
     def start(self) -> None:
@@ -161,7 +158,7 @@ class PilotService(Service):
     def _run(self) -> None:
         period_s = 1.0 / self.settings.setpoint_rate_hz
         state_period_s = 1.0 / self.settings.state_rate_hz
-        due = next_tick = next_state = clock.monotonic()
+        due = next_state = clock.monotonic()
         seq = 0
         try:
             while not self.stopping.is_set():
@@ -181,14 +178,12 @@ class PilotService(Service):
                 if now >= self._path_due and self.pilot.route is not None:
                     self._path_due = now + PATH_PERIOD_S
                     self._path_pub.put(path_sample(self.pilot.route, clock.time_ns()))
-                # the next tick on schedule, but never within SETPOINT_GAP_S of this one's end:
-                # a late setpoint is not followed by a burst to catch up, which the router
-                # would cut (it lets a client's setpoints through at most 200 Hz)
+                # the next tick on schedule (a setpoint right after a late one still keeps the
+                # router's spacing: the steering client waits it out, QUERY_SPACING_S)
                 due += period_s
-                if clock.monotonic() - due > period_s:          # fell a period behind: start again
+                if clock.monotonic() - due > period_s:          # fell a period behind: do not burst
                     due = clock.monotonic()
-                next_tick = max(due, clock.monotonic() + SETPOINT_GAP_S)
-                self.stopping.wait(max(0.0, next_tick - clock.monotonic()))
+                self.stopping.wait(max(0.0, due - clock.monotonic()))
         finally:
             self.pilot.stop("pilot shut down")
             self.client.timeout_s = min(self.settings.arm_timeout_s, 0.5)   # within the 2 s stop

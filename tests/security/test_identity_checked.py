@@ -119,3 +119,22 @@ def test_a_store_made_before_the_black_box_starts_the_car_without_it_and_nothing
     with pytest.raises(SecurityRefusal) as refused:
         _secure_environment(profile_file("pi"), env, True, False, str(store.dir), False)
     assert set(refused.value.failed) == {"recorder", "gnss0"}
+
+
+PILOT = """
+import sys
+from viena.common.service import build_parser
+from viena.services.pilot.service import PilotService
+args = build_parser(PilotService).parse_args(["--connect", "tls/127.0.0.1:7447", "--keys", sys.argv[1]])
+conf = PilotService(args).zenoh_config
+print(conf.get_json("transport/link/tls/connect_certificate"), "cryptography" in sys.modules)
+"""
+
+
+def test_the_pilot_program_presents_autopilot_only_and_checked_loads_no_cryptography(store):
+    """It once built its session as `pilot` (a person's identity) before `autopilot`: checked
+    afresh, with cryptography, and refused on a car whose store has no `pilot`."""
+    checked = checked_by_viena_up(store, "sim")                # a profile with the pilot in it
+    run = subprocess.run([sys.executable, "-c", PILOT, str(store.dir)], capture_output=True, text=True, timeout=60,
+                         env={**__import__("os").environ, IDENTITIES_CHECKED: checked})
+    assert run.stdout.split() == [f'"{store.dir / "autopilot.pem"}"', "False"], run.stderr

@@ -82,6 +82,16 @@ def test_a_garbled_byte_spoils_its_line_and_not_the_bus():
     assert (msg.arbitration_id, bytes(msg.data)) == (0x181, b"\xab\x01")
 
 
+@pytest.mark.parametrize("garbled", [b"t18\xff\r", b"t1812A\xff01\r", b"t1G12AB01\r"])
+def test_a_garbled_frame_is_skipped_by_the_receive_path_not_raised(garbled):
+    """Raised, it would end python-can's receive thread and the link would count as lost."""
+    bus = SlcanBus.__new__(SlcanBus)
+    bus._buffer, bus.serialPortOrig = bytearray(), _Port(garbled + b"t1812AB01\r")
+    bus._queue = __import__("queue").Queue()
+    msg, _ = bus._recv_internal(0.1)
+    assert (msg.arbitration_id, bytes(msg.data)) == (0x181, b"\xab\x01")
+
+
 def test_an_slcan_adapters_receive_thread_wakes_100_times_a_second_when_idle_not_1000():
     """python-can's slcan port times out after 1 ms: its receive thread polled 1000 times a
     second whenever the bus was quiet, on the car's USB adapter too."""

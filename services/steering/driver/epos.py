@@ -107,9 +107,10 @@ class EposDrive:
         self._heartbeat_s = self._heartbeat_state = None
         net = self.network = canopen.Network(self._bus)
         net.NOTIFIER_CYCLE = 0.1      # how long closing waits for the receive thread
+        options = _bus_options(s)
         if self._bus is None and s.interface == "slcan":            # ours (driver/slcan.py); connect keeps it
-            net.bus = SlcanBus(s.channel, bitrate=s.bitrate, **_bus_options(s))
-        net.connect(interface=s.interface, channel=s.channel, bitrate=s.bitrate, **_bus_options(s))
+            net.bus = SlcanBus(s.channel, bitrate=s.bitrate, **options)
+        net.connect(interface=s.interface, channel=s.channel, bitrate=s.bitrate, **options)
         _notifier(net).add_listener(_ReceiveFailure(net))
         od = canopen.import_od(s.eds, s.node_id)
         node = self.node = BaseNode402(s.node_id, od)

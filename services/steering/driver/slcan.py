@@ -15,6 +15,7 @@ lines, commands and parsing are unchanged.
 from __future__ import annotations
 
 import functools
+import logging
 from collections.abc import Iterable
 
 import can
@@ -22,6 +23,8 @@ import serial
 from can.interfaces.slcan import error_check, slcanBus
 
 from viena.common import clock
+
+log = logging.getLogger(__name__)
 
 #: what an adapter answers to a frame it sent (CR; CANable and LAWICEL: z, Z)
 _ACKS = frozenset({"\r", "z\r", "Z\r"})
@@ -66,12 +69,16 @@ class SlcanBus(slcanBus):
                 return None, False
             if line in _ACKS:
                 continue
-            if line[0] == "t" and len(line) >= 6 and line[4] in _DLCS:    # python-can's parse, without
-                dlc = int(line[4])                                      # its queue: ~1 % of a core at 50 Hz
-                return can.Message(arbitration_id=int(line[1:4], 16), is_extended_id=False, timestamp=clock.time(),
-                                   dlc=dlc, data=bytearray.fromhex(line[5:5 + 2 * dlc])), False
-            self._queue.put_nowait(line)                    # anything else: python-can parses it
-            return super()._recv_internal(0)
+            try:
+                if line[0] == "t" and len(line) >= 6 and line[4] in _DLCS:    # python-can's parse, without
+                    dlc = int(line[4])                                      # its queue: ~1 % of a core at 50 Hz
+                    return can.Message(arbitration_id=int(line[1:4], 16), is_extended_id=False,
+                                       timestamp=clock.time(), dlc=dlc,
+                                       data=bytearray.fromhex(line[5:5 + 2 * dlc])), False
+                self._queue.put_nowait(line)                # anything else: python-can parses it
+                return super()._recv_internal(0)
+            except (ValueError, IndexError):                # a garbled line spoils itself, not the bus
+                log.debug("slcan line not understood: %r", line)
 
     def send_frames(self, frames: Iterable[tuple[int, bytes]]) -> None:
         """Send these standard data frames (id, data), in order, with one write."""
